@@ -1,0 +1,198 @@
+"""The simulation model: rest geometry, per-tet material fields and boundary conditions.
+
+Every integrator (``xpbd``, ``ebm``, ``cnn``, ``explicit``, ``reference``) is built from one
+:class:`Model` and advances one :class:`State`; nothing about the model is integrator specific.
+
+Rest geometry follows the usual linear-tet FEM conventions (Zhang eqs. 5.10–5.11,
+Qian eq. 4.21): ``Dm = [X1-X0, X2-X0, X3-X0]`` (columns), ``F = Ds Dm^-1``, rest volume
+``V = det(Dm) / 6`` and lumped masses ``m_i = sum over incident tets of rho V / 4``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim.mesh.types import TetMesh
+
+
+def lame_from_young_poisson(E: np.ndarray | float, nu: np.ndarray | float):
+    """Lamé parameters ``(mu, lam)`` from Young's modulus ``E`` [Pa] and Poisson ratio ``nu``."""
+    E = np.asarray(E, dtype=np.float64)
+    nu = np.asarray(nu, dtype=np.float64)
+    mu = E / (2.0 * (1.0 + nu))
+    lam = E * nu / ((1.0 + nu) * (1.0 - 2.0 * nu))
+    return mu, lam
+
+
+def rest_shape(points: np.ndarray, tets: np.ndarray):
+    """Inverse rest shape matrices ``Dm_inv (m, 3, 3)`` and signed rest volumes ``(m,)``."""
+    X = points[tets]  # (m, 4, 3)
+    Dm = np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]], axis=2)
+    det = np.linalg.det(Dm)
+    volume = det / 6.0
+    Dm_inv = np.linalg.inv(Dm)
+    return np.ascontiguousarray(Dm_inv), volume
+
+
+@dataclass
+class PrescribedDisplacement:
+    """Nodes moved by ``displacement`` [m], ramped linearly from ``t_start`` to ``t_end`` [s]."""
+
+    nodes: np.ndarray
+    displacement: np.ndarray
+    t_start: float = 0.0
+    t_end: float = 0.0
+
+    def fraction(self, t: float) -> float:
+        if self.t_end <= self.t_start:
+            return 1.0 if t >= self.t_start else 0.0
+        return float(np.clip((t - self.t_start) / (self.t_end - self.t_start), 0.0, 1.0))
+
+
+@dataclass
+class Model:
+    """Rest geometry, material fields and boundary conditions of one simulated body.
+
+    Attributes
+    ----------
+    X : (n, 3) rest positions [m].
+    tets : (m, 4) int32 positively oriented tets.
+    Dm_inv : (m, 3, 3) inverse rest shape matrices.
+    volume : (m,) rest volumes [m^3].
+    mass : (n,) lumped masses [kg].
+    E, nu : (m,) Young's modulus [Pa] and Poisson ratio per tet (heterogeneous fields allowed).
+    mu, lam : (m,) Lamé parameters derived from E and nu.
+    density : mass density [kg/m^3].
+    fibre : (m, 3) unit fibre direction per tet, or ``None`` for isotropic materials.
+    constitutive : name of the constitutive model (see ``sim.constitutive``).
+    material_params : model-specific extras (e.g. ``eta`` for the fibre term, Prony terms).
+    fixed : (n,) bool, nodes held at their rest position.
+    prescribed : displacement ramps applied to node sets.
+    gravity : (3,) [m/s^2].
+    external_force : (n, 3) constant nodal forces [N] (surface tractions integrated on faces).
+    """
+
+    X: np.ndarray
+    tets: np.ndarray
+    Dm_inv: np.ndarray
+    volume: np.ndarray
+    mass: np.ndarray
+    E: np.ndarray
+    nu: np.ndarray
+    mu: np.ndarray
+    lam: np.ndarray
+    density: float
+    fibre: np.ndarray | None = None
+    constitutive: str = "stable_neo_hookean"
+    material_params: dict = field(default_factory=dict)
+    fixed: np.ndarray | None = None
+    prescribed: list[PrescribedDisplacement] = field(default_factory=list)
+    gravity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    external_force: np.ndarray | None = None
+    probes: list = field(default_factory=list)
+
+    @classmethod
+    def from_mesh(
+        cls,
+        mesh: TetMesh,
+        E: float | np.ndarray = 3000.0,
+        nu: float | np.ndarray = 0.45,
+        density: float = 1000.0,
+        constitutive: str = "stable_neo_hookean",
+        fibre: np.ndarray | None = None,
+        **kwargs,
+    ) -> "Model":
+        Dm_inv, volume = rest_shape(mesh.points, mesh.tets)
+        if np.any(volume <= 0.0):
+            bad = int(np.flatnonzero(volume <= 0.0)[0])
+            raise ValueError(
+                f"{mesh.source}: tet {bad} has non-positive rest volume {volume[bad]:.3e} m^3; "
+                "expected positively oriented tets"
+            )
+        m = mesh.n_tets
+        E_t = np.broadcast_to(np.asarray(E, dtype=np.float64), (m,)).copy()
+        nu_t = np.broadcast_to(np.asarray(nu, dtype=np.float64), (m,)).copy()
+        mu, lam = lame_from_young_poisson(E_t, nu_t)
+        mass = np.zeros(mesh.n_points)
+        np.add.at(mass, mesh.tets.ravel(), np.repeat(density * volume / 4.0, 4))
+        if fibre is not None:
+            fibre = np.broadcast_to(np.asarray(fibre, dtype=np.float64), (m, 3)).copy()
+            fibre /= np.linalg.norm(fibre, axis=1, keepdims=True)
+        return cls(
+            X=mesh.points.copy(),
+            tets=mesh.tets.copy(),
+            Dm_inv=Dm_inv,
+            volume=volume,
+            mass=mass,
+            E=E_t,
+            nu=nu_t,
+            mu=mu,
+            lam=lam,
+            density=float(density),
+            fibre=fibre,
+            constitutive=constitutive,
+            fixed=np.zeros(mesh.n_points, dtype=bool),
+            **kwargs,
+        )
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.X.shape[0])
+
+    @property
+    def n_tets(self) -> int:
+        return int(self.tets.shape[0])
+
+    def inverse_mass(self) -> np.ndarray:
+        """``1/m`` per node, zero for fixed and prescribed nodes (they are kinematic)."""
+        w = np.where(self.mass > 0.0, 1.0 / np.maximum(self.mass, 1e-300), 0.0)
+        w[self.kinematic_mask()] = 0.0
+        return w
+
+    def kinematic_mask(self) -> np.ndarray:
+        mask = np.zeros(self.n_nodes, dtype=bool) if self.fixed is None else self.fixed.copy()
+        for p in self.prescribed:
+            mask[p.nodes] = True
+        return mask
+
+    def kinematic_targets(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Indices and target positions at time ``t`` of every fixed or prescribed node."""
+        target = self.X.copy()
+        for p in self.prescribed:
+            target[p.nodes] = self.X[p.nodes] + p.fraction(t) * np.asarray(p.displacement)
+        idx = np.flatnonzero(self.kinematic_mask())
+        return idx, target[idx]
+
+    def nodal_external_force(self) -> np.ndarray:
+        """Gravity plus constant nodal forces, (n, 3) [N]."""
+        f = self.mass[:, None] * np.asarray(self.gravity, dtype=np.float64)[None, :]
+        if self.external_force is not None:
+            f = f + self.external_force
+        return f
+
+
+@dataclass
+class State:
+    """Positions ``x (n, 3)``, velocities ``v (n, 3)``, time ``t`` and integrator-private state.
+
+    ``private`` holds what a particular integrator carries between steps (Prony stress history,
+    CNN saturation state, XPBD multipliers are *not* kept: they reset each substep).
+    """
+
+    x: np.ndarray
+    v: np.ndarray
+    t: float = 0.0
+    private: dict = field(default_factory=dict)
+
+    @classmethod
+    def at_rest(cls, model: Model) -> "State":
+        return cls(x=model.X.copy(), v=np.zeros_like(model.X), t=0.0)
+
+    def copy(self) -> "State":
+        return State(
+            x=self.x.copy(),
+            v=self.v.copy(),
+            t=self.t,
+            private={k: (v.copy() if hasattr(v, "copy") else v) for k, v in self.private.items()},
+        )
