@@ -14,7 +14,7 @@ Sources
 - [Yeh02] W.-C. Yeh et al., "Elastic modulus measurements of human liver and correlation with
   pathology", Ultrasound Med. Biol. 28 (2002) 467 — normal liver 0.6–1.7 kPa at 1 %, rising to
   about 4–6 kPa at 10–15 % strain (we use 4.6 kPa for the moderate strains of probing).
-- [Bruce12] Grenier/Bruce: kidney cortex shear moduli 1.5–2.5 kPa by MR elastography
+- [Bensamoun08] kidney cortex shear moduli 1.5–2.5 kPa by MR elastography
   (Bensamoun et al., J. Magn. Reson. Imaging 28 (2008) 1287); E = 3 mu ~ 6 kPa.
 - [Christensen15] M. B. Christensen et al., "Viscoelastic properties of intact porcine colon",
   J. Mech. Behav. Biomed. Mater. (2015) — low-strain colon wall modulus of tens of kPa.

@@ -1,0 +1,86 @@
+"""``tissuerender`` command line: a thin layer over the Python API.
+
+Exit status: 0 success, 1 a failed check (golden), 2 a user error (bad scene, missing file, bad option;
+one line on stderr, never a traceback), 130 interrupted (finished frames are kept; rerun with --resume).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from sim.errors import MeshError
+from tissuerender.errors import UserError
+
+
+def _cmd_render(args) -> int:
+    from tissuerender import load_scene, render
+
+    scene = load_scene(args.scene)
+    result = render(scene, args.out, resume=args.resume, progress=not args.quiet, frames=args.frames)
+    if not args.quiet:
+        print(f"wrote {len(result.written)} file(s) to {result.out_dir}"
+              + (f", kept {len(result.skipped)} finished frame(s)" if result.skipped else "")
+              + f"; manifest: {result.out_dir / 'manifest.json'}")
+    return 0
+
+
+def _cmd_plan(args) -> int:
+    from tissuerender import load_scene, make_plan
+
+    scene = load_scene(args.scene)
+    print(f"scene {scene.name!r} ({scene.path})")
+    print(make_plan(scene).describe())
+    return 0
+
+
+def _cmd_validate(args) -> int:
+    from tissuerender import load_scene
+
+    for path in args.scenes:
+        scene = load_scene(path)
+        print(f"{path}: ok ({scene.name!r}, {len(scene.objects)} object(s), {scene.output.frames} frame(s))")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="tissuerender", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("render", help="render a scene's image sequence")
+    p.add_argument("scene")
+    p.add_argument("-o", "--out", default="out", help="output folder (default: out)")
+    p.add_argument("--resume", action="store_true", help="keep finished frames and render only the missing ones")
+    p.add_argument("--frames", type=int, default=None, help="render only the first N frames")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_render)
+    p = sub.add_parser("plan", help="print the stages a scene will run, and why")
+    p.add_argument("scene")
+    p.set_defaults(func=_cmd_plan)
+    p = sub.add_parser("validate", help="check scene files without rendering")
+    p.add_argument("scenes", nargs="+")
+    p.set_defaults(func=_cmd_validate)
+    try:
+        from tissuerender import golden
+    except ImportError:
+        golden = None
+    if golden is not None and hasattr(golden, "add_cli"):
+        golden.add_cli(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "frames", None) is not None and args.frames < 1:
+        parser.error(f"--frames: expected a positive number, found {args.frames}")
+    try:
+        return int(args.func(args) or 0)
+    except (UserError, MeshError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted: finished frames are kept; rerun with --resume to continue", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

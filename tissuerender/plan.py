@@ -1,0 +1,128 @@
+"""The plan: which stages a scene needs, and why — derived from the scene alone.
+
+"Simulate only the effects a scene calls for": the pipeline builds and runs a stage only when the plan
+lists it, and records what actually ran (``tissuerender.stages.StageRecorder``) in the manifest, so
+tests can prove that an unplanned stage never runs.
+
+>>> # tissuerender plan scenes/default.toml  prints one line per stage with its reason
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from tissuerender.scene import Scene
+
+
+@dataclass(frozen=True)
+class Stage:
+    name: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class Plan:
+    stages: tuple[Stage, ...]
+    skipped: tuple[Stage, ...]
+
+    def __contains__(self, name: str) -> bool:
+        return any(s.name == name for s in self.stages)
+
+    @property
+    def names(self) -> list[str]:
+        return [s.name for s in self.stages]
+
+    def describe(self) -> str:
+        width = max(len(s.name) for s in self.stages + self.skipped)
+        lines = ["stages that will run:"]
+        lines += [f"  {s.name:<{width}}  {s.reason}" for s in self.stages]
+        if self.skipped:
+            lines.append("stages that will not run:")
+            lines += [f"  {s.name:<{width}}  {s.reason}" for s in self.skipped]
+        return "\n".join(lines)
+
+    def as_dict(self) -> dict:
+        return {"stages": {s.name: s.reason for s in self.stages}, "skipped": {s.name: s.reason for s in self.skipped}}
+
+
+def _bodies(scene: Scene):
+    return [o for o in scene.objects if o.kind == "body"]
+
+
+def motion_sources(scene: Scene) -> list[str]:
+    """What makes a body move: tools, prescribed displacements, tractions, gravity on free nodes."""
+    sources = []
+    bodies = _bodies(scene)
+    if not bodies:
+        return sources
+    if scene.tools:
+        sources.append(f"tools ({', '.join(t.name for t in scene.tools)})")
+    for o in bodies:
+        if o.prescribed:
+            sources.append(f"objects.{o.name}.prescribed")
+        if o.tractions:
+            sources.append(f"objects.{o.name}.tractions")
+    if any(abs(g) > 0.0 for g in scene.simulation.gravity):
+        sources.append("simulation.gravity")
+    return sources
+
+
+def make_plan(scene: Scene) -> Plan:
+    import materials
+
+    run: list[Stage] = []
+    skip: list[Stage] = []
+
+    def decide(name: str, needed: bool, why: str, why_not: str) -> None:
+        (run if needed else skip).append(Stage(name, why if needed else why_not))
+
+    bodies = _bodies(scene)
+    surfaces = [o for o in scene.objects if o.kind == "surface"]
+    integrator = scene.simulation.integrator
+    movers = motion_sources(scene)
+    simulate = bool(bodies) and integrator != "none" and bool(movers)
+
+    decide("mesh", bool(bodies), f"tet meshes for bodies: {', '.join(o.name for o in bodies)}", "no simulated bodies")
+    decide("load_surface", bool(surfaces), f"static surfaces: {', '.join(o.name for o in surfaces)}",
+           "no static surfaces")
+    if not bodies:
+        why_not = "no simulated bodies"
+    elif integrator == "none":
+        why_not = "simulation.integrator = \"none\""
+    else:
+        why_not = "static scene: no tool, load, prescribed motion or gravity moves a body"
+    decide("simulate", simulate, f"{integrator} integrator driven by {', '.join(movers)}", why_not)
+    mech = [materials.get_preset(o.material).mechanics for o in bodies]
+    decide("prony_state", simulate and any(m.viscoelastic for m in mech),
+           "a body's material is viscoelastic (Prony series)",
+           "no simulated viscoelastic material" if simulate else "no simulation")
+    decide("fibre_terms", simulate and any(m.fibre is not None for m in mech), "a body's material is anisotropic",
+           "no simulated anisotropic material" if simulate else "no simulation")
+    decide("contact", simulate and bool(scene.tools), "tools touch the tissue",
+           "no tools" if not scene.tools else "no simulation")
+    decide("embed", simulate, "render surfaces follow the simulated tets", "render surfaces stay at rest")
+    decide("write_vtu", simulate and ("vtu" in scene.output.formats or scene.simulation.write_vtu),
+           "output.formats lists vtu", "vtu not requested" if simulate else "no simulation")
+
+    eff = scene.effects
+    decide("raster", True, "every frame is rasterised into the G-buffer", "")
+    decide("textures", eff.textures, "effects.textures: procedural layer maps", "effects.textures = false")
+    decide("velocity_channel", eff.motion, "effects.motion", "effects.motion = false")
+    decide("bvh", eff.shadows or eff.sss or eff.ao,
+           "needed by " + ", ".join(f"effects.{k}" for k in ("shadows", "sss", "ao") if getattr(eff, k)),
+           "shadows, sss and ao are off")
+    decide("shadow_rays", eff.shadows, "effects.shadows", "effects.shadows = false")
+    decide("thickness", eff.sss, "needed by effects.sss (thickness map from rays against the normal)",
+           "effects.sss = false")
+    decide("ao", eff.ao, "effects.ao", "effects.ao = false")
+    decide("mucus_reflection", eff.mucus_reflection, "effects.mucus_reflection (SH environment term)",
+           "effects.mucus_reflection = false")
+    decide("shade", True, f"area light, {scene.light.samples} samples ({scene.light.sampling})", "")
+    chain = scene.effect_chain()
+    import postfx
+
+    for name in postfx.EFFECTS:
+        listed = any(n == name for n, _ in chain)
+        decide(f"postfx.{name}", listed, f"effects.{name} ({eff.backend} backend)", "not listed in effects")
+    decide("write_png", "png" in scene.output.formats, "output.formats lists png", "png not requested")
+    decide("write_hdr", "hdr_npy" in scene.output.formats, "output.formats lists hdr_npy", "hdr_npy not requested")
+    return Plan(stages=tuple(run), skipped=tuple(skip))

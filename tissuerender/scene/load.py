@@ -1,0 +1,249 @@
+"""Reading a scene file: TOML -> validated :class:`Scene`, or a :class:`SceneError` naming the key.
+
+Checks run in order: the file exists and is UTF-8 TOML; every table matches ``schema`` (unknown
+keys, wrong types, out-of-range and non-finite numbers are errors); then cross-references (material
+presets, mesh files next to the scene, effect names, unique names) and size limits that would make
+a render hang (tet counts, step counts).
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from typing import Annotated
+
+from tissuerender.errors import SceneError
+from tissuerender.scene import schema
+
+try:  # Python 3.11+
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+MAX_TETS = 400_000
+MAX_SIM_STEPS = 2_000_000
+SECTIONS = ("scene", "objects", "simulation", "tools", "camera", "light", "effects", "output")
+
+
+class SceneFile(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
+
+    scene: schema.SceneInfo
+    objects: Annotated[list[schema.ObjectSpec], Field(min_length=1, max_length=64)]
+    simulation: schema.Simulation = schema.Simulation()
+    tools: Annotated[list[schema.Tool], Field(max_length=16)] = []
+    camera: schema.Camera
+    light: schema.Light = schema.Light()
+    effects: dict = {}
+    output: schema.Output = schema.Output()
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene. ``path`` is where it was read from (mesh paths resolve against its folder)."""
+
+    path: Path
+    sha256: str
+    info: schema.SceneInfo
+    objects: tuple[schema.ObjectSpec, ...]
+    simulation: schema.Simulation
+    tools: tuple[schema.Tool, ...]
+    camera: schema.Camera
+    light: schema.Light
+    effects: schema.EffectsBase
+    output: schema.Output
+
+    @property
+    def name(self) -> str:
+        return self.info.name
+
+    @property
+    def seed(self) -> int:
+        return self.info.seed
+
+    @property
+    def width(self) -> int:
+        return self.output.resolution[0]
+
+    @property
+    def height(self) -> int:
+        return self.output.resolution[1]
+
+    @property
+    def steps_per_frame(self) -> int:
+        return max(1, round(1.0 / (self.output.fps * self.simulation.dt)))
+
+    def resolve(self, relative: str) -> Path:
+        p = Path(relative)
+        return p if p.is_absolute() else (self.path.parent / p)
+
+    def effect_chain(self) -> list[tuple[str, BaseModel]]:
+        """The post-effects to run, in order: explicit ``order``, else the preset's, else the default."""
+        import postfx
+
+        listed = {name: getattr(self.effects, name) for name in postfx.EFFECTS if getattr(self.effects, name) is not None}
+        preset = list(postfx.CAMERA_PRESETS[self.effects.preset]) if self.effects.preset else []
+        chain: dict[str, BaseModel] = {}
+        for name, params in preset:
+            chain[name] = postfx.EFFECTS[name].model_validate(params)
+        chain.update(listed)  # the scene's own tables override the preset's parameters
+        order = self.effects.order or [n for n in postfx.DEFAULT_ORDER if n in chain]
+        return [(name, chain[name]) for name in order]
+
+
+def _key_path(loc) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out
+
+
+def _short(value, limit: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _validation_error(path: Path, err: ValidationError, prefix: str = "") -> SceneError:
+    errors = err.errors(include_url=False)
+    first = errors[0]
+    key = _key_path(((prefix,) if prefix else ()) + tuple(first["loc"]))
+    kind = first["type"]
+    if kind == "extra_forbidden":
+        msg = f"unknown key (found {_short(first['input'])}); check its spelling against docs/scene-format.md"
+    elif kind == "missing":
+        msg = "missing required key"
+    else:
+        msg = f"expected {first['msg'][0].lower() + first['msg'][1:]}, found {_short(first.get('input'))}"
+    if len(errors) > 1:
+        msg += f" (and {len(errors) - 1} more problem{'s' if len(errors) > 2 else ''})"
+    return SceneError(path, key or None, msg)
+
+
+def read_toml(path: Path) -> dict:
+    if not path.exists():
+        raise SceneError(path, None, "no such file")
+    if not path.is_file():
+        raise SceneError(path, None, "not a regular file")
+    raw = path.read_bytes()
+    if not raw.strip():
+        raise SceneError(path, None, "the file is empty; expected a TOML scene with [scene], [[objects]] and [camera]")
+    if b"\x00" in raw[:4096]:
+        raise SceneError(path, None, "binary content; expected a UTF-8 TOML text file")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise SceneError(path, None, f"not UTF-8 text (bad byte at offset {e.start}); expected a TOML file") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(path, None, f"TOML syntax error: {e}") from None
+    except RecursionError:
+        raise SceneError(path, None, "TOML nesting too deep") from None
+
+
+def load_scene(path) -> Scene:
+    """Read and validate a scene file; raise :class:`SceneError` with the key path on any problem."""
+    path = Path(path)
+    data = read_toml(path)
+    try:
+        parsed = SceneFile.model_validate(data)
+    except ValidationError as e:
+        raise _validation_error(path, e) from None
+    try:
+        effects = schema.effects_model().model_validate(parsed.effects)
+    except ValidationError as e:
+        raise _validation_error(path, e, "effects") from None
+    scene = Scene(
+        path=path,
+        sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
+        info=parsed.scene,
+        objects=tuple(parsed.objects),
+        simulation=parsed.simulation,
+        tools=tuple(parsed.tools),
+        camera=parsed.camera,
+        light=parsed.light,
+        effects=effects,
+        output=parsed.output,
+    )
+    _check_references(scene)
+    return scene
+
+
+def estimated_tets(obj: schema.ObjectSpec) -> int:
+    """Upper estimate of a procedural body's tet count (6 tets per grid cell of its bounding box)."""
+    from tissuerender.bodies import procedural_extent
+
+    extent, h = procedural_extent(obj)
+    cells = 1.0
+    for e in extent:
+        cells *= max(1.0, math.ceil(e / h))
+    return int(min(6.0 * cells, 1e18))
+
+
+def _check_references(scene: Scene) -> None:
+    import materials
+    import postfx
+
+    p = scene.path
+    names = set()
+    for i, obj in enumerate(scene.objects):
+        key = f"objects[{i}]"
+        if obj.name in names:
+            raise SceneError(p, f"{key}.name", f"expected a unique object name, found {obj.name!r} twice")
+        names.add(obj.name)
+        if obj.material not in materials.PRESET_NAMES:
+            raise SceneError(p, f"{key}.material",
+                             f"expected one of {', '.join(materials.PRESET_NAMES)}, found {obj.material!r}")
+        if obj.mesh is not None:
+            mesh_path = scene.resolve(obj.mesh)
+            suffixes = (".ply", ".obj", ".stl") if obj.kind == "surface" else (".msh", ".vtu", ".vtk", ".mesh")
+            if mesh_path.suffix.lower() not in suffixes:
+                raise SceneError(p, f"{key}.mesh", f"expected a {'/'.join(suffixes)} file, found {obj.mesh!r}")
+            if not mesh_path.is_file():
+                raise SceneError(p, f"{key}.mesh", f"mesh file not found: {mesh_path}")
+        if obj.shape is not None:
+            try:
+                n = estimated_tets(obj)
+            except ValueError as e:
+                raise SceneError(p, key, str(e)) from None
+            if n > MAX_TETS:
+                raise SceneError(p, f"{key}.cell_size",
+                                 f"expected at most {MAX_TETS} tets, found about {n} for this size and cell size")
+    tool_names = [t.name for t in scene.tools]
+    if len(set(tool_names)) != len(tool_names):
+        raise SceneError(p, "tools", f"expected unique tool names, found {tool_names}")
+    sim = scene.simulation
+    if sim.integrator != "none":
+        frame_interval = 1.0 / scene.output.fps
+        if sim.dt > frame_interval * 1.5:
+            raise SceneError(p, "simulation.dt",
+                             f"expected a step no longer than the frame interval {frame_interval:.4g} s, found {sim.dt}")
+        total = scene.steps_per_frame * scene.output.frames
+        if total > MAX_SIM_STEPS:
+            raise SceneError(p, "simulation.dt",
+                             f"expected at most {MAX_SIM_STEPS} simulation steps in all, found {total}")
+    eff = scene.effects
+    if eff.preset is not None and eff.preset not in postfx.CAMERA_PRESETS:
+        raise SceneError(p, "effects.preset",
+                         f"expected one of {', '.join(postfx.CAMERA_PRESETS)}, found {eff.preset!r}")
+    if eff.order is not None:
+        available = set(postfx.CAMERA_PRESETS.get(eff.preset, ()) and [n for n, _ in postfx.CAMERA_PRESETS[eff.preset]])
+        available |= {n for n in postfx.EFFECTS if getattr(eff, n) is not None}
+        for j, name in enumerate(eff.order):
+            if name not in postfx.EFFECTS:
+                raise SceneError(p, f"effects.order[{j}]",
+                                 f"expected one of {', '.join(postfx.EFFECTS)}, found {name!r}")
+            if name not in available:
+                raise SceneError(p, f"effects.order[{j}]",
+                                 f"{name!r} is ordered but has no [effects.{name}] table or preset entry")
+        if len(set(eff.order)) != len(eff.order):
+            raise SceneError(p, "effects.order", f"expected each effect once, found {eff.order}")
+    cam = scene.camera
+    if cam.aperture > 0.0 and cam.focus_distance is None and getattr(eff, "depth_of_field", None) is not None:
+        raise SceneError(p, "camera.focus_distance", "depth of field needs a focus distance, found none")

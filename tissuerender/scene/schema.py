@@ -1,0 +1,264 @@
+"""The scene-file schema: every key a scene may hold, its type, range and default.
+
+Every table forbids unknown keys (a typo must never silently switch an effect off), numbers must be
+finite, and types are strict (``"70"`` is not a number). ``docs/scene-format.md`` documents the same
+keys for users; ``tests/test_scene_docs.py`` checks that the two agree.
+"""
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+Vec2Pos = Annotated[list[Annotated[float, Field(gt=0.0)]], Field(min_length=2, max_length=2)]
+RGB = Annotated[list[Annotated[float, Field(ge=0.0, le=1e6)]], Field(min_length=3, max_length=3)]
+Length = Annotated[float, Field(gt=0.0, le=1e3)]
+
+SHAPES = ("box", "beam", "cube", "cylinder", "slab", "liver", "kidney")
+INTEGRATORS = ("xpbd", "ebm", "cnn", "cnn_chainmail", "explicit", "reference", "none")
+FORMATS = ("png", "hdr_npy", "vtu")
+AXES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
+
+
+class SceneInfo(Strict):
+    name: Annotated[str, Field(min_length=1, max_length=200)]
+    seed: Annotated[int, Field(ge=0, le=2**31 - 1)] = 0
+
+
+class Region(Strict):
+    """A node set: one face of the body's bounding box (``side``) or an axis-aligned box."""
+
+    side: Literal[AXES] | None = None  # type: ignore[valid-type]
+    box_min: Vec3 | None = None
+    box_max: Vec3 | None = None
+
+    @model_validator(mode="after")
+    def _one_selector(self):
+        has_box = self.box_min is not None or self.box_max is not None
+        if (self.side is None) == (not has_box):
+            raise ValueError("give either 'side' or both 'box_min' and 'box_max'")
+        if has_box and (self.box_min is None or self.box_max is None):
+            raise ValueError("'box_min' and 'box_max' go together")
+        if has_box and any(lo > hi for lo, hi in zip(self.box_min, self.box_max)):
+            raise ValueError(f"box_min {self.box_min} must not exceed box_max {self.box_max}")
+        return self
+
+
+class Prescribed(Region):
+    """Nodes of a region moved by ``displacement`` [m], ramped linearly from t_start to t_end [s]."""
+
+    displacement: Vec3
+    t_start: Annotated[float, Field(ge=0.0)] = 0.0
+    t_end: Annotated[float, Field(ge=0.0)] = 0.0
+
+
+class Traction(Region):
+    """A constant surface traction [Pa] over the region's boundary faces (integrated to nodal forces)."""
+
+    traction: Vec3
+
+
+class MaterialOverride(Strict):
+    E: Annotated[float, Field(gt=0.0, le=1e9)] | None = None
+    nu: Annotated[float, Field(ge=0.0, lt=0.5)] | None = None
+    density: Annotated[float, Field(gt=0.0, le=1e5)] | None = None
+
+
+class ObjectSpec(Strict):
+    """A simulated body (``kind = "body"``) or a static surface from a file (``kind = "surface"``)."""
+
+    name: Annotated[str, Field(min_length=1, max_length=200)]
+    kind: Literal["body", "surface"] = "body"
+    material: str
+    shape: Literal[SHAPES] | None = None  # type: ignore[valid-type]
+    size: Vec3 | None = None
+    cell_size: Annotated[float, Field(gt=0.0, le=10.0)] | None = None
+    scale: Annotated[float, Field(gt=0.0, le=1e3)] | None = None
+    mesh: str | None = None
+    position: Vec3 = [0.0, 0.0, 0.0]
+    render_subdivision: Annotated[int, Field(ge=0, le=3)] = 0
+    override: MaterialOverride | None = None
+    fixed: list[Region] = []
+    prescribed: list[Prescribed] = []
+    tractions: list[Traction] = []
+
+    @model_validator(mode="after")
+    def _geometry_source(self):
+        if self.kind == "surface":
+            if self.mesh is None:
+                raise ValueError("a static surface needs 'mesh' (a .ply, .obj or .stl file)")
+            extra = [k for k in ("shape", "size", "cell_size") if getattr(self, k) is not None]
+            extra += [k for k in ("fixed", "prescribed", "tractions") if getattr(self, k)]
+            if extra:
+                raise ValueError(f"a static surface takes no {', '.join(extra)} (only bodies are simulated)")
+        elif (self.shape is None) == (self.mesh is None):
+            raise ValueError("a body needs exactly one of 'shape' (procedural) or 'mesh' (a tet-mesh file)")
+        return self
+
+
+class XPBDSettings(Strict):
+    solver: Literal["gauss_seidel", "jacobi"] = "gauss_seidel"
+    coupled: bool = True
+    damping: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
+    relaxation: Annotated[float, Field(gt=0.0, le=2.0)] = 1.0
+    strain_min: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
+    strain_max: Annotated[float, Field(ge=1.0, le=100.0)] | None = None
+
+
+class ReferenceSettings(Strict):
+    mode: Literal["dynamic", "quasistatic"] = "dynamic"
+    tol: Annotated[float, Field(gt=0.0, le=1e-2)] = 1e-8
+    max_newton: Annotated[int, Field(ge=1, le=1000)] = 50
+    anp: bool = False
+
+
+class EBMSettings(Strict):
+    damping: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
+
+
+class CNNSettings(Strict):
+    K: Annotated[float, Field(gt=0.0, le=1e4)] = 4.0
+    saturation: Literal["output", "state"] = "output"
+    force_model: Literal["constitutive", "linear_fem", "energy_propagation"] = "constitutive"
+    rayleigh_alpha: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
+    rayleigh_beta: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
+
+
+class ChainMailSettings(Strict):
+    strain_min: Annotated[float, Field(gt=0.0, le=1.0)] = 0.8
+    strain_max: Annotated[float, Field(ge=1.0, le=10.0)] = 1.2
+
+
+class ExplicitSettings(Strict):
+    damping: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
+
+
+class Simulation(Strict):
+    integrator: Literal[INTEGRATORS] = "none"  # type: ignore[valid-type]
+    dt: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0 / 60.0
+    substeps: Annotated[int, Field(ge=1, le=1000)] = 10
+    iterations: Annotated[int, Field(ge=1, le=10000)] = 10
+    gravity: Vec3 = [0.0, 0.0, -9.81]
+    write_vtu: bool = False
+    xpbd: XPBDSettings = XPBDSettings()
+    reference: ReferenceSettings = ReferenceSettings()
+    ebm: EBMSettings = EBMSettings()
+    cnn: CNNSettings = CNNSettings()
+    cnn_chainmail: ChainMailSettings = ChainMailSettings()
+    explicit: ExplicitSettings = ExplicitSettings()
+
+
+class Keyframe(Strict):
+    t: Annotated[float, Field(ge=0.0, le=1e6)]
+    position: Vec3
+
+
+class Tool(Strict):
+    name: Annotated[str, Field(min_length=1, max_length=200)]
+    kind: Literal["sphere", "capsule"] = "sphere"
+    radius: Annotated[float, Field(gt=0.0, le=10.0)]
+    length: Annotated[float, Field(ge=0.0, le=10.0)] = 0.0
+    axis: Vec3 = [0.0, 0.0, 1.0]
+    visible: bool = True
+    keyframes: Annotated[list[Keyframe], Field(min_length=1, max_length=10000)]
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        times = [k.t for k in self.keyframes]
+        if any(b <= a for a, b in zip(times, times[1:])):
+            raise ValueError(f"keyframe times must increase strictly, found {times}")
+        if self.kind == "capsule" and self.length <= 0.0:
+            raise ValueError("a capsule needs length > 0")
+        if sum(a * a for a in self.axis) < 1e-12:
+            raise ValueError(f"axis must be a non-zero vector, found {self.axis}")
+        return self
+
+
+class Camera(Strict):
+    position: Vec3
+    look_at: Vec3
+    up: Vec3 = [0.0, 0.0, 1.0]
+    fov_deg: Annotated[float, Field(gt=1.0, lt=179.0)] = 70.0
+    near: Annotated[float, Field(gt=0.0, le=1e3)] = 0.005
+    far: Annotated[float, Field(gt=0.0, le=1e5)] = 10.0
+    focus_distance: Annotated[float, Field(gt=0.0, le=1e5)] | None = None
+    aperture: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
+
+    @model_validator(mode="after")
+    def _frame(self):
+        if self.far <= self.near:
+            raise ValueError(f"far ({self.far}) must exceed near ({self.near})")
+        d = [a - b for a, b in zip(self.look_at, self.position)]
+        if sum(c * c for c in d) < 1e-18:
+            raise ValueError("look_at must differ from position")
+        cross = [d[1] * self.up[2] - d[2] * self.up[1], d[2] * self.up[0] - d[0] * self.up[2],
+                 d[0] * self.up[1] - d[1] * self.up[0]]
+        if sum(c * c for c in cross) < 1e-18 * max(sum(u * u for u in self.up), 1e-300):
+            raise ValueError(f"up {self.up} must not be parallel to the view direction")
+        return self
+
+
+class Light(Strict):
+    attach: Literal["camera", "world"] = "camera"
+    size: Vec2Pos = [0.01, 0.01]
+    radiance: RGB = [40.0, 40.0, 40.0]
+    offset: Vec3 = [0.0, 0.0, 0.0]
+    position: Vec3 | None = None
+    normal: Vec3 | None = None
+    up: Vec3 = [0.0, 0.0, 1.0]
+    sampling: Literal["adaptive", "uniform", "importance"] = "adaptive"
+    samples: Annotated[int, Field(ge=1, le=4096)] = 16
+
+    @model_validator(mode="after")
+    def _placement(self):
+        if self.attach == "world" and (self.position is None or self.normal is None):
+            raise ValueError("a world light needs 'position' and 'normal'")
+        if self.attach == "camera" and (self.position is not None or self.normal is not None):
+            raise ValueError("a camera-attached light takes 'offset', not 'position'/'normal'")
+        return self
+
+
+class Output(Strict):
+    resolution: Annotated[list[Annotated[int, Field(ge=8, le=8192)]], Field(min_length=2, max_length=2)] = [640, 480]
+    frames: Annotated[int, Field(ge=1, le=100000)] = 1
+    fps: Annotated[float, Field(gt=0.0, le=10000.0)] = 24.0
+    formats: Annotated[list[Literal[FORMATS]], Field(min_length=1)] = ["png"]  # type: ignore[valid-type]
+    supersampling: Annotated[int, Field(ge=1, le=8)] = 1
+
+
+RENDER_FLAGS = ("shadows", "sss", "ao", "mucus_reflection", "motion", "textures")
+
+
+class EffectsBase(Strict):
+    """Renderer switches; the post-effect tables are added from ``postfx.EFFECTS`` (see ``effects_model``)."""
+
+    shadows: bool = False
+    sss: bool = False
+    ao: bool = False
+    mucus_reflection: bool = False
+    motion: bool = False
+    textures: bool = True
+    backend: Literal["auto", "numpy", "osmesa"] = "auto"
+    preset: str | None = None
+    order: list[str] | None = None
+
+
+_EFFECTS_MODEL = None
+
+
+def effects_model():
+    """``EffectsBase`` extended with one optional table per post-effect that ``postfx`` provides."""
+    global _EFFECTS_MODEL
+    if _EFFECTS_MODEL is None:
+        from pydantic import create_model
+
+        import postfx
+
+        fields = {name: (model | None, None) for name, model in postfx.EFFECTS.items()}
+        _EFFECTS_MODEL = create_model("Effects", __base__=EffectsBase, **fields)
+    return _EFFECTS_MODEL
