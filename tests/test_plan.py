@@ -1,0 +1,95 @@
+"""The plan is derived from the scene alone, and stages it does not list never run."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import tissuerender
+from tissuerender import load_scene, make_plan
+from tissuerender.cli import main
+from tissuerender.stages import StageRecorder
+
+SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
+
+
+@pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
+def test_every_shipped_scene_plans(path, capsys):
+    assert main(["plan", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "stages that will run:" in out and "raster" in out and "shade" in out
+
+
+def test_static_scene_plans_no_simulation(scene_dict, write_scene):
+    plan = make_plan(load_scene(write_scene(scene_dict)))
+    assert "simulate" not in plan and "embed" not in plan and "contact" not in plan
+    assert any(s.name == "simulate" and "integrator" in s.reason for s in plan.skipped)
+
+
+def test_integrator_without_anything_moving_is_static(scene_dict, write_scene):
+    scene_dict["simulation"] = {"integrator": "xpbd", "gravity": [0.0, 0.0, 0.0]}
+    plan = make_plan(load_scene(write_scene(scene_dict)))
+    assert "simulate" not in plan
+    assert any(s.name == "simulate" and "static scene" in s.reason for s in plan.skipped)
+
+
+def test_gravity_or_tool_makes_it_dynamic(scene_dict, write_scene):
+    scene_dict["simulation"] = {"integrator": "xpbd", "gravity": [0.0, 0.0, 0.0]}
+    scene_dict["tools"] = [{"name": "probe", "radius": 0.01, "keyframes": [{"t": 0.0, "position": [0, 0, 0.1]}]}]
+    plan = make_plan(load_scene(write_scene(scene_dict)))
+    assert "simulate" in plan and "contact" in plan and "embed" in plan
+
+
+def test_no_bvh_thickness_or_ao_when_effects_are_off(scene_dict, write_scene):
+    plan = make_plan(load_scene(write_scene(scene_dict)))
+    for name in ("bvh", "shadow_rays", "thickness", "ao", "velocity_channel"):
+        assert name not in plan
+
+
+def test_sss_needs_thickness_and_bvh(scene_dict, write_scene):
+    scene_dict["effects"]["sss"] = True
+    plan = make_plan(load_scene(write_scene(scene_dict)))
+    assert "thickness" in plan and "bvh" in plan and "shadow_rays" not in plan
+    assert "effects.sss" in dict((s.name, s.reason) for s in plan.stages)["bvh"]
+
+
+def test_prony_state_only_for_viscoelastic_material(scene_dict, write_scene):
+    scene_dict["simulation"] = {"integrator": "xpbd"}
+    elastic = make_plan(load_scene(write_scene(scene_dict)))
+    assert "simulate" in elastic and "prony_state" not in elastic and "fibre_terms" not in elastic
+    scene_dict["objects"][0]["material"] = "colon_mucosa"
+    visco = make_plan(load_scene(write_scene(scene_dict, "visco.toml")))
+    assert "prony_state" in visco
+    scene_dict["objects"][0]["material"] = "fascia"
+    assert "fibre_terms" in make_plan(load_scene(write_scene(scene_dict, "aniso.toml")))
+
+
+def test_only_listed_post_effects_are_planned(scene_dict, write_scene):
+    plan = make_plan(load_scene(write_scene(scene_dict)))
+    post = [n for n in plan.names if n.startswith("postfx.")]
+    assert post == ["postfx.tonemap"]
+
+
+def test_static_render_never_builds_an_integrator_or_bvh(scene_dict, write_scene, monkeypatch, tmp_path):
+    import sim.integrators
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("an unplanned stage ran")
+
+    monkeypatch.setattr(sim.integrators, "make_integrator", refuse)
+    scene = load_scene(write_scene(scene_dict))
+    result = tissuerender.render(scene, tmp_path / "out", progress=False)
+    executed = result.manifest["executed"]
+    assert "simulate" not in executed and "bvh" not in executed and "thickness" not in executed
+    assert {"mesh", "raster", "shade", "write_png"} <= set(executed)
+    assert set(executed) <= set(result.plan.names)
+
+
+def test_executed_stages_are_a_subset_of_the_plan_for_a_dynamic_scene(scene_dict, write_scene, tmp_path):
+    scene_dict["simulation"] = {"integrator": "xpbd", "dt": 1 / 24, "substeps": 2, "iterations": 2}
+    scene_dict["output"]["frames"] = 2
+    scene = load_scene(write_scene(scene_dict))
+    recorder_names = set(tissuerender.render(scene, tmp_path / "out", progress=False).manifest["executed"])
+    plan = make_plan(scene)
+    assert {"simulate", "embed"} <= recorder_names <= set(plan.names)
