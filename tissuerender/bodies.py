@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -57,7 +58,13 @@ def build_tet_mesh(obj: ObjectSpec, scene: Scene) -> TetMesh:
     """The body's rest tet mesh, translated to ``obj.position``."""
     from sim.mesh import io, procedural
 
-    if obj.mesh is not None:
+    if obj.mesh is not None and Path(obj.mesh).suffix.lower() in (".ply", ".obj", ".stl"):
+        # A closed surface: voxelised into tets (trimesh) with the boundary snapped back onto it.
+        surface = io.read_surface(scene.resolve(obj.mesh))
+        extent = surface.points.max(axis=0) - surface.points.min(axis=0)
+        h = obj.cell_size if obj.cell_size is not None else float(extent.min()) / 8.0
+        mesh = io.tetrahedralize_surface(surface, h)
+    elif obj.mesh is not None:
         mesh = io.read_tet_mesh(scene.resolve(obj.mesh))
     else:
         extent, h = procedural_extent(obj)

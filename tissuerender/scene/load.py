@@ -24,6 +24,8 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 MAX_TETS = 400_000
+TET_SUFFIXES = (".msh", ".vtu", ".vtk", ".mesh")
+SURFACE_SUFFIXES = (".ply", ".obj", ".stl")
 MAX_SIM_STEPS = 2_000_000
 SECTIONS = ("scene", "objects", "simulation", "tools", "camera", "light", "effects", "output")
 
@@ -202,7 +204,7 @@ def _check_references(scene: Scene) -> None:
                              f"expected one of {', '.join(materials.PRESET_NAMES)}, found {obj.material!r}")
         if obj.mesh is not None:
             mesh_path = scene.resolve(obj.mesh)
-            suffixes = (".ply", ".obj", ".stl") if obj.kind == "surface" else (".msh", ".vtu", ".vtk", ".mesh")
+            suffixes = SURFACE_SUFFIXES if obj.kind == "surface" else TET_SUFFIXES + SURFACE_SUFFIXES
             if mesh_path.suffix.lower() not in suffixes:
                 raise SceneError(p, f"{key}.mesh", f"expected a {'/'.join(suffixes)} file, found {obj.mesh!r}")
             if not mesh_path.is_file():
