@@ -52,6 +52,7 @@ class SurfaceMesh:
     normals: np.ndarray | None = None
     uv: np.ndarray | None = None
     source: str = "<memory>"
+    vertex_map: np.ndarray | None = None  # surface vertex -> tet-mesh node, for boundary surfaces
 
     def __post_init__(self) -> None:
         self.points = np.ascontiguousarray(self.points, dtype=np.float64)

@@ -1,0 +1,53 @@
+"""Points embedded in a tet mesh by barycentric coordinates (a finer render surface following the
+deformation of the simulation mesh)."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from sim.mesh.types import Embedding, TetMesh
+
+
+def barycentric(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Barycentric coordinates (p, 4) of points (p, 3) in tets given by their corners (p, 4, 3)."""
+    T = np.stack([corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0], corners[:, 3] - corners[:, 0]], axis=2)
+    rhs = (points - corners[:, 0])[..., None]
+    lam = np.linalg.solve(T, rhs)[..., 0]
+    return np.concatenate([1.0 - lam.sum(axis=1, keepdims=True), lam], axis=1)
+
+
+def embed_points(mesh: TetMesh, points: np.ndarray, candidates: int = 16) -> Embedding:
+    """Containing tet and barycentric weights of each point.
+
+    The ``candidates`` tets with the nearest centroids are tested; the one whose smallest barycentric
+    coordinate is largest wins. Points outside every candidate (slightly outside the mesh) get that
+    tet's barycentrics clamped to >= 0 and renormalised; ``extra["outside_distance"]`` records how far
+    the clamped point is from the original one [m].
+    """
+    points = np.asarray(points, dtype=np.float64)
+    centroids = mesh.points[mesh.tets].mean(axis=1)
+    k = min(candidates, mesh.n_tets)
+    _, cand = cKDTree(centroids).query(points, k=k)
+    cand = cand.reshape(points.shape[0], k)
+    best_tet = np.empty(points.shape[0], dtype=np.int32)
+    best_bary = np.empty((points.shape[0], 4))
+    best_score = np.full(points.shape[0], -np.inf)
+    for j in range(k):
+        tet = cand[:, j]
+        bary = barycentric(points, mesh.points[mesh.tets[tet]])
+        score = bary.min(axis=1)
+        better = score > best_score
+        best_tet[better], best_bary[better], best_score[better] = tet[better], bary[better], score[better]
+    outside = best_score < -1e-9
+    clamped = np.clip(best_bary[outside], 0.0, None)
+    best_bary[outside] = clamped / clamped.sum(axis=1, keepdims=True)
+    emb = Embedding(best_tet, best_bary)
+    moved = deform(emb, mesh.tets, mesh.points)
+    emb.extra["outside_distance"] = np.linalg.norm(moved - points, axis=1)
+    return emb
+
+
+def deform(embedding: Embedding, tets: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Embedded point positions for node positions ``x``: ``sum_k bary_k x[tet_k]``."""
+    corners = x[tets[embedding.tet_index]]  # (p, 4, 3)
+    return np.einsum("pk,pkd->pd", embedding.bary, corners)

@@ -1,0 +1,75 @@
+"""Boundary surfaces of tet meshes, vertex normals, UVs and subdivision of render surfaces."""
+from __future__ import annotations
+
+import numpy as np
+
+from sim.mesh.types import SurfaceMesh, TetMesh
+
+# Faces of a positively oriented tet (0,1,2,3), ordered counter-clockwise seen from outside.
+TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
+
+
+def boundary_faces(tets: np.ndarray) -> np.ndarray:
+    """Faces used by exactly one tet, outward oriented, as tet-mesh node ids (k, 3)."""
+    faces = tets[:, TET_FACES].reshape(-1, 3)
+    key = np.sort(faces, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return faces[counts[inverse.ravel()] == 1]
+
+
+def vertex_normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (the cross products summed per vertex, then normalised)."""
+    p = points[triangles]
+    face_n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])  # length = 2 * area
+    n = np.zeros_like(points)
+    for k in range(3):
+        np.add.at(n, triangles[:, k], face_n)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return n / np.where(length > 0.0, length, 1.0)
+
+
+def cylindrical_uv(points: np.ndarray) -> np.ndarray:
+    """UVs by cylindrical projection about the vertical (z) axis through the bounding-box centre:
+    ``u = angle / 2 pi``, ``v = (z - z_min) / (z_max - z_min)``."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    c = 0.5 * (lo + hi)
+    u = (np.arctan2(points[:, 1] - c[1], points[:, 0] - c[0]) / (2.0 * np.pi)) + 0.5
+    v = (points[:, 2] - lo[2]) / max(hi[2] - lo[2], 1e-12)
+    return np.stack([u, v], axis=1)
+
+
+def boundary_surface(mesh: TetMesh) -> SurfaceMesh:
+    """The closed outer surface of a tet mesh, with normals, UVs and ``vertex_map`` into the mesh nodes."""
+    faces = boundary_faces(mesh.tets)
+    used, local = np.unique(faces, return_inverse=True)
+    triangles = local.reshape(-1, 3)
+    points = mesh.points[used]
+    return SurfaceMesh(points, triangles, normals=vertex_normals(points, triangles), uv=cylindrical_uv(points),
+                       source=mesh.source, vertex_map=used.astype(np.int64))
+
+
+def subdivide(surface: SurfaceMesh, levels: int = 1) -> SurfaceMesh:
+    """Midpoint 4-to-1 subdivision, ``levels`` times (positions, normals and UVs interpolated linearly).
+
+    The finer surface is embedded in the tets by the caller; ``vertex_map`` is dropped.
+    """
+    points, tris = surface.points, surface.triangles.astype(np.int64)
+    normals, uv = surface.normals, surface.uv
+    for _ in range(levels):
+        edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+        key = np.sort(edges, axis=1)
+        unique, inverse = np.unique(key, axis=0, return_inverse=True)
+        inverse = inverse.ravel()
+        n = points.shape[0]
+        mid = n + inverse.reshape(3, -1).T  # (k, 3): midpoint ids of edges 01, 12, 20
+        points = np.concatenate([points, 0.5 * (points[unique[:, 0]] + points[unique[:, 1]])])
+        if normals is not None:
+            normals = np.concatenate([normals, 0.5 * (normals[unique[:, 0]] + normals[unique[:, 1]])])
+            normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+        if uv is not None:
+            uv = np.concatenate([uv, 0.5 * (uv[unique[:, 0]] + uv[unique[:, 1]])])
+        a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+        m01, m12, m20 = mid[:, 0], mid[:, 1], mid[:, 2]
+        tris = np.concatenate([np.stack([a, m01, m20], 1), np.stack([m01, b, m12], 1),
+                               np.stack([m20, m12, c], 1), np.stack([m01, m12, m20], 1)])
+    return SurfaceMesh(points, tris, normals=normals, uv=uv, source=surface.source)
