@@ -15,7 +15,7 @@ MINIMAL_SCENE = {
     ],
     "simulation": {"integrator": "none"},
     "camera": {"position": [0.0, -0.25, 0.2], "look_at": [0.05, 0.05, 0.02], "fov_deg": 60.0},
-    "light": {"attach": "camera", "size": [0.02, 0.02], "radiance": [30.0, 30.0, 30.0], "samples": 4},
+    "light": {"attach": "camera", "size": [0.02, 0.02], "radiance": [3000.0, 3000.0, 3000.0], "samples": 4},
     "effects": {"tonemap": {}},
     "output": {"resolution": [64, 48], "frames": 1, "fps": 24.0},
 }

@@ -125,8 +125,22 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
                                            f"produced non-finite positions at t = {world.states[i].t:.4g} s")
 
 
+def renderer():
+    """The deferred renderer (``tissuerender.render``), or the preview raster when it is absent."""
+    try:
+        from tissuerender import render as full
+
+        if hasattr(full, "render_frame"):
+            return full
+    except ImportError:
+        pass
+    from tissuerender import preview
+
+    return preview
+
+
 def camera_for(scene: Scene, width: int | None = None, height: int | None = None):
-    from tissuerender.render import Camera
+    Camera = renderer().Camera
 
     c = scene.camera
     return Camera(position=c.position, look_at=c.look_at, up=c.up, fov_deg=c.fov_deg, near=c.near, far=c.far,
@@ -135,7 +149,7 @@ def camera_for(scene: Scene, width: int | None = None, height: int | None = None
 
 
 def light_for(scene: Scene):
-    from tissuerender.render import AreaLight
+    AreaLight = renderer().AreaLight
 
     lt = scene.light
     return AreaLight(size=tuple(lt.size), radiance=tuple(lt.radiance), attach=lt.attach,
@@ -144,7 +158,7 @@ def light_for(scene: Scene):
 
 
 def settings_for(scene: Scene, seed: int):
-    from tissuerender.render import RenderSettings
+    RenderSettings = renderer().RenderSettings
 
     e = scene.effects
     return RenderSettings(shadows=e.shadows, sss=e.sss, ao=e.ao, mucus_reflection=e.mucus_reflection,
@@ -171,7 +185,8 @@ def tool_surface(tool, t: float):
 
 def render_objects(world: World, scene: Scene, t: float, plan: Plan, recorder: StageRecorder, previous=None):
     from sim.mesh.surface import vertex_normals
-    from tissuerender.render import RenderObject
+
+    RenderObject = renderer().RenderObject
 
     objects = []
     positions = {}
@@ -211,8 +226,7 @@ def render_objects(world: World, scene: Scene, t: float, plan: Plan, recorder: S
 def render_hdr(world: World, scene: Scene, plan: Plan, recorder: StageRecorder, t: float, seed: int,
                width: int | None = None, height: int | None = None, previous=None):
     """Raster and shade one frame: (FrameResult, surface positions by body name)."""
-    from tissuerender.render import render_frame
-
+    render_frame = renderer().render_frame
     objects, positions = render_objects(world, scene, t, plan, recorder, previous)
     result = render_frame(objects, camera_for(scene, width, height), light_for(scene), settings_for(scene, seed),
                           recorder=recorder)

@@ -206,7 +206,7 @@ class Camera(Strict):
 class Light(Strict):
     attach: Literal["camera", "world"] = "camera"
     size: Vec2Pos = [0.01, 0.01]
-    radiance: RGB = [40.0, 40.0, 40.0]
+    radiance: RGB = [2000.0, 2000.0, 2000.0]
     offset: Vec3 = [0.0, 0.0, 0.0]
     position: Vec3 | None = None
     normal: Vec3 | None = None
