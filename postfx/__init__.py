@@ -1,0 +1,96 @@
+"""Post-effects of the laparoscope camera (Qian §6.3.3): depth of field, chromatic aberration, tone
+mapping with sRGB encoding, and the circular scope mask.
+
+Default order (``DEFAULT_ORDER``): depth of field and chromatic aberration act on scene-linear HDR
+light, as the lens does; the tone map then turns light into display values; the mask comes last so
+its black surround stays black and its soft edge has the same profile at every exposure. Qian's
+profiles put CA with the tone map and the mask last; we keep the mask last and move the lens
+effects before the tone map, where they are physical.
+
+Only the effects listed in the scene's ``[effects]`` table run, in order.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from postfx import effects
+from postfx.params import EFFECTS, EffectParams
+
+DEFAULT_ORDER = ["depth_of_field", "chromatic_aberration", "tonemap", "laparoscope_mask"]
+
+# Named camera signatures: (effect, parameters) in order.
+CAMERA_PRESETS: dict[str, list[tuple[str, dict]]] = {
+    "hd_scope": [
+        ("chromatic_aberration", {"strength_r": 0.002, "strength_b": -0.002}),
+        ("tonemap", {"exposure": 0.0, "curve": "aces"}),
+        ("laparoscope_mask", {"radius": 1.15, "softness": 0.05, "vignette": 0.25}),
+    ],
+    "old_scope": [
+        ("chromatic_aberration", {"strength_r": 0.008, "strength_b": -0.008}),
+        ("tonemap", {"exposure": 0.3, "curve": "reinhard"}),
+        ("laparoscope_mask", {"radius": 0.9, "softness": 0.08, "vignette": 0.55}),
+    ],
+}
+
+
+class OSMesaUnavailable(RuntimeError):
+    """The off-screen OpenGL backend cannot run here (message names what to install)."""
+
+
+@dataclass(frozen=True)
+class Lens:
+    """What the lens effects need to turn metres into pixels: horizontal field of view and size."""
+
+    fov_deg: float
+    width: int
+    height: int
+
+
+@dataclass
+class ChainResult:
+    image: np.ndarray
+    seconds: dict = field(default_factory=dict)
+    backend_used: str = "numpy"
+
+
+def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params: EffectParams, lens: Lens) -> np.ndarray:
+    if name == "depth_of_field":
+        return effects.depth_of_field(img, depth, params, lens.fov_deg)
+    if name == "chromatic_aberration":
+        return effects.chromatic_aberration(img, params)
+    if name == "tonemap":
+        return effects.tonemap(img, params)
+    if name == "laparoscope_mask":
+        return effects.laparoscope_mask(img, params)
+    raise KeyError(f"unknown post-effect {name!r}; expected one of {', '.join(EFFECTS)}")
+
+
+def apply_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens: Lens, backend: str = "auto",
+                seed: int = 0) -> ChainResult:
+    """Run ``chain`` (a list of ``(name, params)``) on a linear HDR image; returns display values.
+
+    Without a tone map in the chain the result is the linear image clipped to [0, 1].
+    """
+    if backend == "osmesa":
+        raise OSMesaUnavailable("the osmesa post-effects backend is not part of this build yet; "
+                                "use backend = \"numpy\" or \"auto\"")
+    if backend not in ("auto", "numpy"):
+        raise ValueError(f"unknown backend {backend!r}; expected auto, numpy or osmesa")
+    img = np.ascontiguousarray(hdr, dtype=np.float32)
+    seconds = {}
+    for name, params in chain:
+        start = time.perf_counter()
+        img = apply_effect(name, img, depth, params, lens).astype(np.float32, copy=False)
+        seconds[name] = time.perf_counter() - start
+    return ChainResult(np.clip(img, 0.0, 1.0), seconds, "numpy")
+
+
+def to_uint8(image: np.ndarray) -> np.ndarray:
+    """Display values in [0, 1] -> 8-bit (round to nearest)."""
+    return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+__all__ = ["EFFECTS", "DEFAULT_ORDER", "CAMERA_PRESETS", "Lens", "apply_chain", "to_uint8", "OSMesaUnavailable"]

@@ -1,0 +1,67 @@
+"""Parameters of every post-effect, validated (unknown keys, wrong types and out-of-range values are
+errors). The scene's ``[effects.NAME]`` tables are read into these models."""
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class EffectParams(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
+
+
+class ChromaticAberration(EffectParams):
+    """Radial per-channel magnification about the optical centre (lateral colour, Qian §6.3.3).
+
+    Channel ``c`` is magnified by ``1 + strength_c``: a feature at radius r pixels moves to
+    ``r (1 + strength_c)``. Typical scopes: |strength| 0.001–0.01.
+    """
+
+    strength_r: Annotated[float, Field(ge=-1.0, le=1.0, description="red magnification - 1")] = 0.004
+    strength_g: Annotated[float, Field(ge=-1.0, le=1.0, description="green magnification - 1")] = 0.0
+    strength_b: Annotated[float, Field(ge=-1.0, le=1.0, description="blue magnification - 1")] = -0.004
+    centre: Annotated[list[Annotated[float, Field(ge=0.0, le=1.0)]], Field(min_length=2, max_length=2,
+                      description="optical centre as a fraction of width and height")] = [0.5, 0.5]
+
+
+class DepthOfField(EffectParams):
+    """Thin-lens depth of field: circle of confusion from depth, gathered with a disc kernel.
+
+    CoC diameter on the sensor ``c = 2 A f |d - d_f| / (d (d_f - f))`` for aperture radius A, focal
+    length f, focus distance d_f and depth d; in pixels ``c W / (2 f tan(fov/2))``.
+    """
+
+    focus_distance: Annotated[float, Field(gt=0.0, le=1e5, description="in-focus distance [m]")] = 0.1
+    aperture: Annotated[float, Field(ge=0.0, le=1.0, description="aperture radius [m]")] = 0.001
+    focal_length: Annotated[float, Field(gt=0.0, le=1.0, description="lens focal length [m]")] = 0.004
+    max_radius_px: Annotated[float, Field(ge=0.0, le=64.0, description="largest blur radius [px]")] = 12.0
+
+
+class LaparoscopeMask(EffectParams):
+    """Circular scope aperture with a soft edge and a radial vignette.
+
+    Radii are fractions of half the image height; ``offset`` moves the circle's centre by fractions of
+    the width and height (an off-centre scope).
+    """
+
+    radius: Annotated[float, Field(gt=0.0, le=4.0)] = 0.95
+    softness: Annotated[float, Field(ge=0.0, le=2.0)] = 0.04
+    vignette: Annotated[float, Field(ge=0.0, le=1.0, description="darkening at the rim")] = 0.35
+    offset: Annotated[list[Annotated[float, Field(ge=-1.0, le=1.0)]], Field(min_length=2, max_length=2)] = [0.0, 0.0]
+
+
+class Tonemap(EffectParams):
+    """Exposure, a filmic tone curve and the sRGB display encoding (linear HDR in, display out)."""
+
+    exposure: Annotated[float, Field(ge=-20.0, le=20.0, description="exposure [stops]")] = 0.0
+    curve: Literal["aces", "reinhard", "clamp"] = "aces"
+    srgb: bool = True
+
+
+EFFECTS: dict[str, type[EffectParams]] = {
+    "depth_of_field": DepthOfField,
+    "chromatic_aberration": ChromaticAberration,
+    "tonemap": Tonemap,
+    "laparoscope_mask": LaparoscopeMask,
+}
