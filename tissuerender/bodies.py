@@ -29,7 +29,8 @@ DEFAULT_SIZE = {
     "slab": (0.2, 0.2, 0.03),
 }
 DEFAULT_SCALE = {"liver": 0.15, "kidney": 0.11}
-ORGAN_EXTENT = 2.2  # organ SDFs fit inside a box of about ORGAN_EXTENT * scale per side
+ORGAN_EXTENT = 2.2
+SMOOTHED_SHAPES = ("liver", "kidney")  # organ SDFs fit inside a box of about ORGAN_EXTENT * scale per side
 
 
 def procedural_extent(obj: ObjectSpec) -> tuple[tuple[float, float, float], float]:
@@ -171,7 +172,7 @@ class StaticSurface:
 
 def build_body(obj: ObjectSpec, index: int, scene: Scene) -> Body:
     from sim.mesh.embed import embed_points
-    from sim.mesh.surface import boundary_surface, subdivide
+    from sim.mesh.surface import boundary_surface, subdivide, taubin_smooth
 
     try:
         mesh = build_tet_mesh(obj, scene)
@@ -180,6 +181,9 @@ def build_body(obj: ObjectSpec, index: int, scene: Scene) -> Body:
     boundary = boundary_surface(mesh)
     model = build_model(obj, index, mesh, scene, boundary)
     surface = subdivide(boundary, obj.render_subdivision) if obj.render_subdivision else boundary
+    if obj.shape in SMOOTHED_SHAPES:
+        # Organ shapes come from a voxel grid: render a Taubin-smoothed surface, embedded in the tets.
+        surface = taubin_smooth(surface, iterations=8 * (1 + obj.render_subdivision))
     embedding = embed_points(mesh, surface.points)
     return Body(obj, mesh, model, surface, embedding)
 

@@ -228,8 +228,11 @@ def render_hdr(world: World, scene: Scene, plan: Plan, recorder: StageRecorder, 
     """Raster and shade one frame: (FrameResult, surface positions by body name)."""
     render_frame = renderer().render_frame
     objects, positions = render_objects(world, scene, t, plan, recorder, previous)
-    result = render_frame(objects, camera_for(scene, width, height), light_for(scene), settings_for(scene, seed),
-                          recorder=recorder)
+    try:
+        result = render_frame(objects, camera_for(scene, width, height), light_for(scene),
+                              settings_for(scene, seed), recorder=recorder)
+    except NotImplementedError as e:
+        raise UserError(f"{scene.path}: [effects] asks for something this renderer cannot do: {e}") from None
     return result, positions
 
 

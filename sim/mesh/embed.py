@@ -20,9 +20,9 @@ def embed_points(mesh: TetMesh, points: np.ndarray, candidates: int = 16) -> Emb
     """Containing tet and barycentric weights of each point.
 
     The ``candidates`` tets with the nearest centroids are tested; the one whose smallest barycentric
-    coordinate is largest wins. Points outside every candidate (slightly outside the mesh) get that
-    tet's barycentrics clamped to >= 0 and renormalised; ``extra["outside_distance"]`` records how far
-    the clamped point is from the original one [m].
+    coordinate is largest wins. Points slightly outside the mesh (a smoothed render surface) keep that
+    tet's barycentrics, some negative: the point moves with the tet's affine map.
+    ``extra["outside_distance"]`` records each point's distance to the tet [m] (0 inside).
     """
     points = np.asarray(points, dtype=np.float64)
     centroids = mesh.points[mesh.tets].mean(axis=1)
@@ -38,12 +38,14 @@ def embed_points(mesh: TetMesh, points: np.ndarray, candidates: int = 16) -> Emb
         score = bary.min(axis=1)
         better = score > best_score
         best_tet[better], best_bary[better], best_score[better] = tet[better], bary[better], score[better]
+    # Points outside every candidate keep the (slightly negative) barycentrics of the best tet: an
+    # affine extrapolation that still follows the deformation. Their distance to the mesh is recorded.
     outside = best_score < -1e-9
-    clamped = np.clip(best_bary[outside], 0.0, None)
-    best_bary[outside] = clamped / clamped.sum(axis=1, keepdims=True)
+    clamped = np.clip(best_bary, 0.0, None)
+    clamped /= clamped.sum(axis=1, keepdims=True)
     emb = Embedding(best_tet, best_bary)
-    moved = deform(emb, mesh.tets, mesh.points)
-    emb.extra["outside_distance"] = np.linalg.norm(moved - points, axis=1)
+    nearest = np.einsum("pk,pkd->pd", clamped, mesh.points[mesh.tets[best_tet]])
+    emb.extra["outside_distance"] = np.where(outside, np.linalg.norm(nearest - points, axis=1), 0.0)
     return emb
 
 

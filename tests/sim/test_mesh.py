@@ -63,6 +63,7 @@ def test_embedding_round_trip_rest_and_affine():
     moved = embed.deform(emb, mesh.tets, mesh.points @ A.T + b)
     assert np.abs(moved - (fine.points @ A.T + b)).max() < 1e-12
     assert np.allclose(emb.bary.sum(axis=1), 1.0) and emb.bary.min() > -1e-9
+    assert emb.extra["outside_distance"].max() < 1e-12
 
 
 def test_subdivision_quadruples_triangles_and_stays_on_the_surface():
