@@ -7,6 +7,8 @@ Python API (the CLI is a thin layer over it)::
     print(tissuerender.make_plan(scene).describe())          # the stages that will run, and why
     tissuerender.render(scene, "out/")                       # frames + manifest.json
 """
+import importlib
+
 from tissuerender.errors import SceneError, UserError
 from tissuerender.scene import Scene, load_scene
 
@@ -16,10 +18,13 @@ __all__ = ["Scene", "SceneError", "UserError", "load_scene", "make_plan", "rende
 
 def __getattr__(name):
     # The pipeline pulls in numba kernels; import it only when a render is asked for.
-    if name in ("render", "render_image"):
+    if name == "render":
+        # the renderer package, callable as render(scene, out_dir) (see tissuerender/render/__init__.py)
+        return importlib.import_module("tissuerender.render")
+    if name == "render_image":
         from tissuerender import pipeline
 
-        return getattr(pipeline, name)
+        return pipeline.render_image
     if name == "make_plan":
         from tissuerender.plan import make_plan
 

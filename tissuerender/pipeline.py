@@ -9,6 +9,7 @@ still advances through them, so the remaining frames are identical to an uninter
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import os
 import platform
@@ -126,17 +127,8 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
 
 
 def renderer():
-    """The deferred renderer (``tissuerender.render``), or the preview raster when it is absent."""
-    try:
-        from tissuerender import render as full
-
-        if hasattr(full, "render_frame"):
-            return full
-    except ImportError:
-        pass
-    from tissuerender import preview
-
-    return preview
+    """The deferred renderer module (``tissuerender.render``)."""
+    return importlib.import_module("tissuerender.render")
 
 
 def camera_for(scene: Scene, width: int | None = None, height: int | None = None):
@@ -163,7 +155,7 @@ def settings_for(scene: Scene, seed: int):
     e = scene.effects
     return RenderSettings(shadows=e.shadows, sss=e.sss, ao=e.ao, mucus_reflection=e.mucus_reflection,
                           light_samples=scene.light.samples, supersampling=scene.output.supersampling,
-                          seed=seed, motion=e.motion, textures=e.textures)
+                          seed=seed, motion=e.motion)
 
 
 def tool_surface(tool, t: float):

@@ -105,7 +105,6 @@ def make_plan(scene: Scene) -> Plan:
 
     eff = scene.effects
     decide("raster", True, "every frame is rasterised into the G-buffer", "")
-    decide("textures", eff.textures, "effects.textures: procedural layer maps", "effects.textures = false")
     decide("velocity_channel", eff.motion, "effects.motion", "effects.motion = false")
     decide("bvh", eff.shadows or eff.sss or eff.ao,
            "needed by " + ", ".join(f"effects.{k}" for k in ("shadows", "sss", "ao") if getattr(eff, k)),

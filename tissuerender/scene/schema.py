@@ -231,7 +231,7 @@ class Output(Strict):
     supersampling: Annotated[int, Field(ge=1, le=8)] = 1
 
 
-RENDER_FLAGS = ("shadows", "sss", "ao", "mucus_reflection", "motion", "textures")
+RENDER_FLAGS = ("shadows", "sss", "ao", "mucus_reflection", "motion")
 
 
 class EffectsBase(Strict):
@@ -242,7 +242,6 @@ class EffectsBase(Strict):
     ao: bool = False
     mucus_reflection: bool = False
     motion: bool = False
-    textures: bool = True
     backend: Literal["auto", "numpy", "osmesa"] = "auto"
     preset: str | None = None
     order: list[str] | None = None

@@ -1,0 +1,82 @@
+"""Rasterisation into the G-buffer (Qian §7.2.2): project the render surface with the laparoscope's
+pinhole camera and keep, per pixel, the nearest triangle and its perspective-correct barycentrics.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+def camera_basis(position, look_at, up):
+    """Orthonormal (right, up, forward) of a camera looking from ``position`` at ``look_at``."""
+    f = np.asarray(look_at, float) - np.asarray(position, float)
+    f /= np.linalg.norm(f)
+    r = np.cross(f, np.asarray(up, float))
+    r /= np.linalg.norm(r)
+    return r, np.cross(r, f), f
+
+
+@njit(cache=True)
+def rasterize(sx, sy, zv, tris, width, height, near, depth, tri_id, bary):
+    """Z-buffer raster of triangles with screen positions ``sx, sy`` and view depths ``zv``.
+
+    Writes per pixel the nearest view depth, the triangle id and perspective-correct barycentrics
+    (weights ``b_i / z_i`` renormalised). Triangles with a vertex in front of ``near`` are skipped.
+    """
+    for t in range(tris.shape[0]):
+        a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+        if zv[a] < near or zv[b] < near or zv[c] < near:
+            continue
+        x0, y0, x1, y1, x2, y2 = sx[a], sy[a], sx[b], sy[b], sx[c], sy[c]
+        area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+        if area == 0.0:
+            continue
+        i0 = max(int(np.floor(min(x0, x1, x2))), 0)
+        i1 = min(int(np.ceil(max(x0, x1, x2))), width - 1)
+        j0 = max(int(np.floor(min(y0, y1, y2))), 0)
+        j1 = min(int(np.ceil(max(y0, y1, y2))), height - 1)
+        for j in range(j0, j1 + 1):
+            py = j + 0.5
+            for i in range(i0, i1 + 1):
+                px = i + 0.5
+                w0 = ((x1 - px) * (y2 - py) - (x2 - px) * (y1 - py)) / area
+                w1 = ((x2 - px) * (y0 - py) - (x0 - px) * (y2 - py)) / area
+                w2 = 1.0 - w0 - w1
+                if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
+                    continue
+                p0, p1, p2 = w0 / zv[a], w1 / zv[b], w2 / zv[c]
+                inv_z = p0 + p1 + p2
+                z = 1.0 / inv_z
+                if z < depth[j, i]:
+                    depth[j, i] = z
+                    tri_id[j, i] = t
+                    bary[j, i, 0] = p0 * z
+                    bary[j, i, 1] = p1 * z
+                    bary[j, i, 2] = p2 * z
+
+
+def project(points: np.ndarray, camera, width: int, height: int):
+    """Screen coordinates (pixels, row 0 at the top) and view depth of ``points`` for a camera with a
+    horizontal field of view ``camera.fov_deg``."""
+    r, u, f = camera_basis(camera.position, camera.look_at, camera.up)
+    tan_x = np.tan(np.radians(camera.fov_deg) / 2.0)
+    tan_y = tan_x * height / width
+    rel = np.asarray(points, float) - np.asarray(camera.position, float)
+    xv, yv, zv = rel @ r, rel @ u, rel @ f
+    safe = np.where(zv > 1e-12, zv, 1e-12)
+    sx = (xv / safe / tan_x + 1.0) * 0.5 * width
+    sy = (1.0 - yv / safe / tan_y) * 0.5 * height
+    return sx, sy, zv
+
+
+def rasterize_objects(points: np.ndarray, triangles: np.ndarray, camera, width: int, height: int):
+    """(depth (H, W) view depth or inf, triangle id (H, W) or -1, perspective-correct barycentrics (H, W, 3))."""
+    sx, sy, zv = project(points, camera, width, height)
+    depth = np.full((height, width), np.inf)
+    tri_id = np.full((height, width), -1, np.int64)
+    bary = np.zeros((height, width, 3))
+    if triangles.shape[0]:
+        rasterize(sx, sy, zv, triangles, width, height, float(camera.near), depth, tri_id, bary)
+    far = depth > camera.far
+    depth[far], tri_id[far] = np.inf, -1
+    return depth, tri_id, bary
