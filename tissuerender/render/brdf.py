@@ -2,8 +2,11 @@
 thickness-based subsurface term (Qian §6.3, eqs. 6.1–6.6; Walter et al. 2007 for GGX D, Heitz 2014
 for the height-correlated Smith G, Schlick 1994 for F).
 
-Energy split (Qian eq. 6.4): the diffuse part is weighted by ``1 - F`` so that specular plus diffuse
-never reflect more than arrives; within the diffuse part ``k_sss`` moves weight from Lambert
+Energy split (Qian eq. 6.4 asks for k_d + k_s <= 1): the diffuse part is weighted by the Fresnel
+transmission into and out of the surface in the reciprocal form of Ashikhmin & Shirley (2000),
+``28/23 (1 - F0) [1 - (1 - n.l/2)^5] [1 - (1 - n.v/2)^5]``, so that diffuse plus specular never
+reflect more than arrives, even at grazing angles where the specular lobe takes almost everything
+(tested by a white-furnace test). Within the diffuse part ``k_sss`` moves weight from Lambert
 ``albedo / pi`` to ``C exp(-sigma T)`` (Qian eqs. 6.5 and 6.8) with ``C = sss_colour / pi``.
 """
 from __future__ import annotations
@@ -21,7 +24,7 @@ def smith_visibility(n_v: np.ndarray, n_l: np.ndarray, alpha: np.ndarray) -> np.
     a2 = alpha * alpha
     lam_v = n_l * np.sqrt(n_v * n_v * (1.0 - a2) + a2)
     lam_l = n_v * np.sqrt(n_l * n_l * (1.0 - a2) + a2)
-    return 0.5 / np.maximum(lam_v + lam_l, 1e-12)
+    return 0.5 / np.maximum(lam_v + lam_l, 1e-12)  # finite as n.v -> 0 (then lam_l -> 0 too)
 
 
 def schlick_F(v_h: np.ndarray, f0: np.ndarray) -> np.ndarray:
@@ -40,12 +43,13 @@ def reflectance_cos(n, wo, wi, albedo, alpha, f0, sss=None):
     h = wo + wi
     h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
     n_l = np.clip(np.einsum("ij,ij->i", n, wi), 0.0, 1.0)
-    n_v = np.clip(np.einsum("ij,ij->i", n, wo), 1e-4, 1.0)
+    n_v = np.clip(np.einsum("ij,ij->i", n, wo), 0.0, 1.0)
     n_h = np.clip(np.einsum("ij,ij->i", n, h), 0.0, 1.0)
     v_h = np.clip(np.einsum("ij,ij->i", wo, h), 0.0, 1.0)
     F = schlick_F(v_h, f0)
     spec = ggx_D(n_h, alpha) * smith_visibility(n_v, n_l, alpha) * F
+    transmission = (28.0 / 23.0) * (1.0 - f0) * (1.0 - (1.0 - 0.5 * n_l) ** 5) * (1.0 - (1.0 - 0.5 * n_v) ** 5)
     diffuse = albedo / np.pi
     if sss is not None:
         diffuse = diffuse + sss
-    return (diffuse * (1.0 - F)[:, None] + spec[:, None]) * n_l[:, None]
+    return (diffuse * transmission[:, None] + spec[:, None]) * n_l[:, None]

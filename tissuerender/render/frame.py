@@ -130,6 +130,34 @@ def radical_inverse(i: np.ndarray) -> np.ndarray:
     return out
 
 
+def light_sample(s: int, m: np.ndarray, rotation: np.ndarray, pos: np.ndarray, centre, ln, eu, ev):
+    """Sample ``s`` of ``m`` on the light for each shading point: the point q, the unit direction wi
+    towards it and the weight ``cos(theta_l) / r^2 * A / m`` (Qian eq. 6.14 with the A/m correction)."""
+    area = 4.0 * np.linalg.norm(eu) * np.linalg.norm(ev)
+    u = np.mod(s / m + rotation[:, 0], 1.0)
+    v = np.mod(radical_inverse(np.full(m.shape, s)) + rotation[:, 1], 1.0)
+    q = centre + (2.0 * u - 1.0)[:, None] * eu + (2.0 * v - 1.0)[:, None] * ev
+    wi = q - pos
+    d2 = np.maximum(np.einsum("ij,ij->i", wi, wi), 1e-12)
+    wi /= np.sqrt(d2)[:, None]
+    cos_l = np.clip(-(wi @ ln), 0.0, None)
+    return q, wi, cos_l / d2 * area / m
+
+
+def irradiance(pos: np.ndarray, n: np.ndarray, light: AreaLight, camera: Camera, m: np.ndarray,
+               seed: int = 0) -> np.ndarray:
+    """Irradiance [W/m^2] from the area light at points ``pos`` with normals ``n``, estimated with
+    ``m`` samples per point exactly as the shader does (no occlusion)."""
+    centre, ln, eu, ev = light_frame(light, camera)
+    rotation = np.random.default_rng(seed).random((pos.shape[0], 2))
+    E = np.zeros(pos.shape[0])
+    for s in range(int(m.max())):
+        act = np.flatnonzero(s < m)
+        _, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev)
+        E[act] += weight * np.clip(np.einsum("ij,ij->i", n[act], wi), 0.0, None)
+    return E * np.mean(light.radiance)
+
+
 def _merge(objects):
     pts, tris, nrm, vel, tri_mat, names = [], [], [], [], [], []
     offset = 0
@@ -155,6 +183,50 @@ def _merge(objects):
             np.concatenate(tri_mat), names)
 
 
+def clip_near(P, N, V, T, tri_mat, camera: Camera):
+    """Split triangles crossing the near plane so the part in front of it is still drawn.
+
+    New vertices lie on the crossing edges at view depth ``near``; positions, normals and velocities
+    are linear along an edge, so interpolating them there is exact. Triangles wholly behind the near
+    plane are dropped.
+    """
+    _, _, f = camera_basis(camera.position, camera.look_at, camera.up)
+    z = (P - np.asarray(camera.position, float)) @ f
+    near = float(camera.near)
+    inside = z[T] >= near
+    n_in = inside.sum(axis=1)
+    crossing = np.flatnonzero((n_in > 0) & (n_in < 3))
+    if crossing.size == 0:
+        return P, N, V, T[n_in == 3], tri_mat[n_in == 3]
+    P, N, V = list(P), list(N), list(V)
+    new_tris, new_mat = [], []
+
+    def cut(a, b):
+        t = (near - z[a]) / (z[b] - z[a])
+        P.append(P[a] + t * (P[b] - P[a]))
+        N.append(N[a] + t * (N[b] - N[a]))
+        V.append(V[a] + t * (V[b] - V[a]))
+        return len(P) - 1
+
+    for k in crossing:
+        tri = T[k]
+        flags = inside[k]
+        # rotate so the vertex that is alone on its side comes first, keeping the winding
+        lone = int(np.flatnonzero(flags if n_in[k] == 1 else ~flags)[0])
+        a, b, c = tri[lone], tri[(lone + 1) % 3], tri[(lone + 2) % 3]
+        ab, ac = cut(a, b), cut(a, c)
+        if n_in[k] == 1:
+            new_tris.append([a, ab, ac])
+            new_mat.append(tri_mat[k])
+        else:
+            new_tris += [[ab, b, c], [ab, c, ac]]
+            new_mat += [tri_mat[k], tri_mat[k]]
+    keep = n_in == 3
+    T = np.concatenate([T[keep], np.asarray(new_tris, np.int64)])
+    tri_mat = np.concatenate([tri_mat[keep], np.asarray(new_mat, np.int64)])
+    return np.asarray(P), np.asarray(N), np.asarray(V), T, tri_mat
+
+
 def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSettings,
                  recorder: StageRecorder | None = None) -> FrameResult:
     """Render one frame: linear HDR radiance (H, W, 3) float32, view depth (H, W) (inf = background)."""
@@ -171,6 +243,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
     optics = [materials.get_preset(name).optics for name in names]
     gbuffer: dict = {}
     with rec.run("raster"):
+        P, N, V, T, tri_mat = clip_near(P, N, V, T, tri_mat, camera)
         depth, tri_id, bary = rasterize_objects(P, T, camera, W, H)
         jj, ii = np.nonzero(tri_id >= 0)
         corner = T[tri_id[jj, ii]]
@@ -207,7 +280,6 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
     hdr = np.zeros((H, W, 3), np.float32)
     with rec.run("shade"):
         centre, ln, eu, ev = light_frame(light, camera)
-        area = 4.0 * np.linalg.norm(eu) * np.linalg.norm(ev)
         m = sample_counts(np.linalg.norm(pos - centre, axis=1), light)
         gbuffer["light_samples"] = m
         rng = np.random.default_rng(settings.seed)
@@ -215,14 +287,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         radiance = np.zeros((pos.shape[0], 3))
         for s in range(int(m.max()) if m.size else 0):
             act = np.flatnonzero(s < m)
-            u = np.mod(s / m[act] + rotation[act, 0], 1.0)
-            v = np.mod(radical_inverse(np.full(act.size, s)) + rotation[act, 1], 1.0)
-            q = centre + (2.0 * u - 1.0)[:, None] * eu + (2.0 * v - 1.0)[:, None] * ev
-            wi = q - pos[act]
-            d2 = np.maximum(np.einsum("ij,ij->i", wi, wi), 1e-12)
-            wi /= np.sqrt(d2)[:, None]
-            cos_l = np.clip(-(wi @ ln), 0.0, None)
-            weight = cos_l / d2 * area / m[act]
+            q, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev)
             if settings.shadows:
                 with rec.run("shadow_rays"):
                     weight = weight * ~bvh.occluded(pos[act] + 2 * eps * n[act], q)

@@ -1,0 +1,190 @@
+"""The deferred renderer: energy, estimator convergence, degenerate inputs, raster and determinism."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tissuerender.render import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+from tissuerender.render.brdf import reflectance_cos
+from tissuerender.render.frame import irradiance, sample_counts
+from tissuerender.stages import StageRecorder
+
+
+def _unit(v):
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _corner_form_factor(a, b, c):
+    """Point-to-parallel-rectangle form factor, the point below one corner (sides a, b, distance c)."""
+    A, B = a / c, b / c
+    return (A / np.sqrt(1 + A * A) * np.arctan(B / np.sqrt(1 + A * A))
+            + B / np.sqrt(1 + B * B) * np.arctan(A / np.sqrt(1 + B * B))) / (2 * np.pi)
+
+
+def test_lambert_irradiance_under_a_small_rectangle_matches_the_closed_form():
+    h, w, l = 0.1, 0.02, 0.03  # distance, light size
+    light = AreaLight(size=(w, l), radiance=(1000.0,) * 3, attach="world", position=(0, 0, h),
+                      normal=(0, 0, -1), up=(0, 1, 0), sampling="uniform", samples=256)
+    camera = Camera((0, -1, 1), (0, 0, 0), (0, 0, 1), 60, 0.01, 10, 8, 8)
+    pos = np.zeros((1, 3))
+    E = irradiance(pos, np.array([[0.0, 0.0, 1.0]]), light, camera, np.array([256]))[0]
+    exact = np.pi * 1000.0 * 4 * _corner_form_factor(w / 2, l / 2, h)
+    assert E == pytest.approx(exact, rel=0.01)
+
+
+def test_adaptive_estimate_converges_to_brute_force_as_m_grows():
+    rng = np.random.default_rng(3)
+    pos = np.column_stack([rng.uniform(-0.05, 0.05, 200), rng.uniform(-0.05, 0.05, 200), np.zeros(200)])
+    n = np.tile([0.0, 0.0, 1.0], (200, 1))
+    light = AreaLight(size=(0.04, 0.04), radiance=(100.0,) * 3, attach="world", position=(0.02, 0, 0.05),
+                      normal=(0, 0, -1), sampling="uniform", samples=1)
+    cam = Camera((0, -1, 1), (0, 0, 0), (0, 0, 1), 60, 0.01, 10, 8, 8)
+    reference = irradiance(pos, n, light, cam, np.full(200, 4096))
+    errors = [np.sqrt(np.mean((irradiance(pos, n, light, cam, np.full(200, m)) - reference) ** 2)) for m in (1, 4, 16, 64)]
+    assert all(b < a for a, b in zip(errors, errors[1:]))
+    assert errors[-1] < 0.02 * reference.mean()
+
+
+def test_adaptive_counts_follow_distance_and_keep_the_a_over_m_weight():
+    light = AreaLight(samples=16, sampling="adaptive")
+    assert sample_counts(np.array([0.05, 0.1, 0.3]), light).tolist() == [16, 8, 4]
+    # brightness does not jump at a threshold: estimates with 16 and 8 samples agree at d = 0.08 m
+    cam = Camera((0, 0, 0.08), (0, 0, 0), (0, 1, 0), 60, 0.001, 10, 8, 8)
+    pos, n = np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]])
+    world = AreaLight(size=(0.01, 0.01), attach="camera")
+    e16 = irradiance(pos, n, world, cam, np.array([16]))[0]
+    e8 = irradiance(pos, n, world, cam, np.array([8]))[0]
+    assert e8 == pytest.approx(e16, rel=0.01)
+
+
+def _hemisphere(k, rng):
+    d = rng.normal(size=(k, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d[:, 2] = np.abs(d[:, 2])
+    return d
+
+
+@pytest.mark.parametrize("alpha", [0.001, 0.1, 0.3, 0.6, 1.0])
+@pytest.mark.parametrize("theta_deg", [0.0, 45.0, 80.0, 89.0])
+def test_directional_albedo_never_exceeds_one(alpha, theta_deg):
+    rng = np.random.default_rng(0)
+    k = 200_000
+    wi = _hemisphere(k, rng)
+    th = np.radians(theta_deg)
+    wo = np.tile([np.sin(th), 0.0, np.cos(th)], (k, 1))
+    n = np.tile([0.0, 0.0, 1.0], (k, 1))
+    f_cos = reflectance_cos(n, wo, wi, np.ones((k, 3)), np.full(k, alpha), np.full(k, 0.04))
+    albedo = f_cos.mean(axis=0) * 2 * np.pi  # uniform hemisphere pdf 1/(2 pi)
+    assert np.all(albedo <= 1.0 + 3 * f_cos.std(axis=0).max() * 2 * np.pi / np.sqrt(k) + 1e-3)
+    if theta_deg <= 45.0:  # away from grazing a white surface reflects most of the light
+        assert np.all(albedo > 0.8)
+
+
+def test_brdf_is_reciprocal():
+    rng = np.random.default_rng(1)
+    k = 1000
+    n = np.tile([0.0, 0.0, 1.0], (k, 1))
+    wo, wi = _hemisphere(k, rng), _hemisphere(k, rng)
+    args = (np.full((k, 3), 0.6), np.full(k, 0.3), np.full(k, 0.04))
+    f_ab = reflectance_cos(n, wo, wi, *args) / wi[:, 2:3]
+    f_ba = reflectance_cos(n, wi, wo, *args) / wo[:, 2:3]
+    assert np.allclose(f_ab, f_ba, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("alpha", [0.0, 1.0])
+def test_degenerate_directions_and_roughness_give_finite_non_negative_values(alpha):
+    n = np.array([[0.0, 0.0, 1.0]] * 4)
+    wo = _unit([[1.0, 0.0, 1e-9], [0.0, 0.0, 1.0], [1, 0, 1], [0.0, 1.0, 0.0]])
+    wi = _unit([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [-1, 0, 1], [0.0, -1.0, 1e-12]])  # behind, mirror, grazing
+    out = reflectance_cos(n, wo, wi, np.full((4, 3), 0.5), np.full(4, alpha), np.full(4, 0.04),
+                          sss=np.zeros((4, 3)))
+    assert np.isfinite(out).all() and out.min() >= 0.0
+    assert np.all(out[1] == 0.0)  # light behind the surface contributes nothing
+
+
+def _quad(z=0.0, size=0.2, material="plastic"):
+    p = np.array([[-size, -size, z], [size, -size, z], [size, size, z], [-size, size, z]])
+    return RenderObject(points=p, triangles=np.array([[0, 1, 2], [0, 2, 3]]),
+                        normals=np.tile([0.0, 0.0, 1.0], (4, 1)), uv=None, material=material)
+
+
+def _top_camera(w=64, h=48):
+    return Camera((0.0, 0.0, 0.3), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 60.0, 0.01, 5.0, w, h)
+
+
+def test_raster_coverage_and_perspective_correct_depth():
+    cam = Camera((0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 90.0, 0.01, 5.0, 100, 100)
+    # a square of side 1 at distance 1 under a 90 deg fov covers exactly the middle half of the image
+    res = render_frame([_quad(0.0, 0.5)], cam, AreaLight(samples=1), RenderSettings())
+    assert np.isfinite(res.depth).sum() == 50 * 50
+    # a slanted plane z = y/2 that crosses the near plane (clipped, not dropped): the view depth of
+    # each pixel equals the ray-plane intersection distance
+    p = np.array([[-2.0, -2.0, -1.0], [2.0, -2.0, -1.0], [2.0, 2.0, 1.0], [-2.0, 2.0, 1.0]])
+    slanted = RenderObject(points=p, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=None,
+                           material="liver")
+    res = render_frame([slanted], cam, AreaLight(samples=1), RenderSettings())
+    j, i = 20, 60
+    x_ndc, y_ndc = (i + 0.5) / 50 - 1, 1 - (j + 0.5) / 50
+    d = np.array([x_ndc, y_ndc, -1.0])  # view ray through the pixel centre (camera looks down -z)
+    t = 1.0 / (d[1] / 2 - d[2])  # solve 1 + t d_z = (t d_y) / 2
+    assert res.depth[j, i] == pytest.approx(t, rel=1e-5)
+    assert np.isfinite(res.depth).all()  # the clipped plane still fills the whole view
+
+
+def test_same_seed_same_pixels_and_seed_changes_noise():
+    scene = [_quad(0.0, 0.2, "liver")]
+    light = AreaLight(size=(0.05, 0.05), radiance=(500.0,) * 3, samples=4)
+    a = render_frame(scene, _top_camera(), light, RenderSettings(seed=1)).hdr
+    b = render_frame(scene, _top_camera(), light, RenderSettings(seed=1)).hdr
+    c = render_frame(scene, _top_camera(), light, RenderSettings(seed=2)).hdr
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    assert a.mean() == pytest.approx(c.mean(), rel=0.05)
+
+
+def test_shadows_darken_only_when_asked_and_bvh_runs_only_then():
+    floor = _quad(0.0, 0.2, "liver")
+    blocker = _quad(0.15, 0.03, "plastic")
+    cam = _top_camera()
+    light = AreaLight(size=(0.01, 0.01), radiance=(2000.0,) * 3, attach="world", position=(0.0, 0.0, 0.25),
+                      normal=(0, 0, -1), sampling="uniform", samples=4)
+    rec = StageRecorder()
+    lit = render_frame([floor, blocker], cam, light, RenderSettings(), recorder=rec)
+    assert not rec.ran("bvh") and not rec.ran("shadow_rays")
+    rec = StageRecorder()
+    shadowed = render_frame([floor, blocker], cam, light, RenderSettings(shadows=True), recorder=rec)
+    assert rec.ran("bvh") and rec.ran("shadow_rays") and not rec.ran("thickness")
+    # Floor points seen past the blocker's edge but inside its shadow: from the light at z = 0.25 the
+    # blocker (half-width 0.03 at z = 0.15) shadows the floor out to 0.03 * 0.25 / 0.10 = 0.075 m.
+    h, w = lit.depth.shape
+    j, i = np.mgrid[0:h, 0:w] + 0.5
+    tan = np.tan(np.radians(30.0))
+    x = (i / (w / 2) - 1) * tan * lit.depth
+    y = (1 - j / (h / 2)) * tan * h / w * lit.depth
+    reach = np.maximum(np.abs(x), np.abs(y))
+    floor = lit.depth > 0.2
+    umbra = floor & (reach > 0.062) & (reach < 0.068)
+    outside = floor & (reach > 0.09)
+    assert umbra.sum() > 10
+    assert shadowed.hdr[umbra].mean() < 0.25 * lit.hdr[umbra].mean()  # umbra plus the inner penumbra
+    assert np.allclose(shadowed.hdr[outside], lit.hdr[outside])
+
+
+def test_thin_tissue_transmits_more_through_the_subsurface_term():
+    cam = _top_camera()
+    light = AreaLight(size=(0.02, 0.02), radiance=(2000.0,) * 3, samples=4)
+
+    def slab(thickness):
+        top = _quad(0.0, 0.2, "liver")
+        bottom = _quad(-thickness, 0.2, "liver")
+        bottom.triangles = bottom.triangles[:, ::-1].copy()
+        bottom.normals = -bottom.normals
+        return [top, bottom]
+
+    thin = render_frame(slab(0.0005), cam, light, RenderSettings(sss=True))
+    thick = render_frame(slab(0.02), cam, light, RenderSettings(sss=True))
+    assert np.median(thin.gbuffer["thickness"]) == pytest.approx(0.0005, rel=0.05)
+    red_thin, red_thick = thin.hdr[..., 0].mean(), thick.hdr[..., 0].mean()
+    assert red_thin > red_thick  # exp(-sigma T) larger for thin tissue
+    zero = render_frame(slab(0.0), cam, light, RenderSettings(sss=True)).hdr
+    assert np.isfinite(zero).all() and zero.min() >= 0.0
