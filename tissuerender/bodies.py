@@ -180,10 +180,15 @@ def build_body(obj: ObjectSpec, index: int, scene: Scene) -> Body:
         raise SceneError(scene.path, f"objects[{index}]", str(e)) from None
     boundary = boundary_surface(mesh)
     model = build_model(obj, index, mesh, scene, boundary)
-    surface = subdivide(boundary, obj.render_subdivision) if obj.render_subdivision else boundary
+    surface = boundary
     if obj.shape in SMOOTHED_SHAPES:
-        # Organ shapes come from a voxel grid: render a Taubin-smoothed surface, embedded in the tets.
-        surface = taubin_smooth(surface, iterations=8 * (1 + obj.render_subdivision))
+        # Organ shapes come from a voxel grid: smooth the staircase away at the tet-mesh scale first,
+        # then again lightly after subdivision; the result is embedded in the tets.
+        surface = taubin_smooth(surface, iterations=20)
+    if obj.render_subdivision:
+        surface = subdivide(surface, obj.render_subdivision)
+        if obj.shape in SMOOTHED_SHAPES:
+            surface = taubin_smooth(surface, iterations=4)
     embedding = embed_points(mesh, surface.points)
     return Body(obj, mesh, model, surface, embedding)
 

@@ -84,7 +84,7 @@ def test_node_selection():
 
 def test_tet_mesh_files_round_trip(tmp_path):
     mesh = procedural.cube(1.0, 2)
-    for ext in ("vtu", "msh", "vtk"):
+    for ext in ("vtu", "msh", "vtk", "mesh"):
         path = tmp_path / f"cube.{ext}"
         meshio.write(path, meshio.Mesh(mesh.points, [("tetra", mesh.tets)]), **({"file_format": "gmsh22"} if ext == "msh" else {}))
         back = io.read_tet_mesh(path)
