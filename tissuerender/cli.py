@@ -58,12 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("validate", help="check scene files without rendering")
     p.add_argument("scenes", nargs="+")
     p.set_defaults(func=_cmd_validate)
-    try:
-        from tissuerender import golden
-    except ImportError:
-        golden = None
-    if golden is not None and hasattr(golden, "add_cli"):
-        golden.add_cli(sub)
+    from tissuerender import golden
+
+    golden.add_cli(sub)
     return parser
 
 

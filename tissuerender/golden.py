@@ -1,0 +1,225 @@
+"""Golden-image testing as a user feature: ``tissuerender golden check|update DIR``.
+
+``DIR/manifest.toml`` lists images::
+
+    [[image]]
+    name = "default"                  # file stem of the stored image(s)
+    scene = "../../scenes/default.toml"   # relative to DIR
+    resolution = [160, 120]
+    mode = "exact"                    # or "statistical"
+    flip_max = 0.02                   # exact: mean FLIP (NVIDIA FLIP, LDR) must not exceed this
+    psnr_min = 35.0                   # exact: PSNR [dB] must reach this
+    n_seeds = 8                       # statistical: renders per check, each with its own seed
+    alpha = 0.01                      # statistical: family-wise false-failure rate (Bonferroni)
+
+*Exact* mode renders the scene with its own seed and compares the PNG with the stored one: a
+perceptual metric (FLIP through flip-evaluator) and PSNR, with per-image thresholds. *Statistical*
+mode is for renders meant to vary with the seed (the way Mitsuba 3's render tests work): ``update``
+stores the per-pixel mean and variance over ``n_seeds`` seeds; ``check`` renders ``n_seeds`` other
+seeds and runs a per-pixel two-sample z-test of the new mean against the stored one, failing when the
+smallest p-value falls below ``alpha / pixels`` — so a noisy but unbiased image passes and a biased
+one fails. Failures write ``DIR/failures/NAME.new.png`` and ``NAME.diff.png`` (the FLIP error map,
+or |z| for statistical mode).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from tissuerender.errors import SceneError, UserError
+
+
+class GoldenImage(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
+
+    name: Annotated[str, Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")]
+    scene: str
+    resolution: Annotated[list[Annotated[int, Field(ge=8, le=4096)]], Field(min_length=2, max_length=2)] = [160, 120]
+    mode: Literal["exact", "statistical"] = "exact"
+    flip_max: Annotated[float, Field(ge=0.0, le=1.0)] = 0.02
+    psnr_min: Annotated[float, Field(ge=0.0, le=200.0)] = 35.0
+    n_seeds: Annotated[int, Field(ge=2, le=256)] = 8
+    alpha: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.01
+
+
+class GoldenManifest(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+
+    image: Annotated[list[GoldenImage], Field(min_length=1)]
+
+
+@dataclass
+class Result:
+    name: str
+    mode: str
+    passed: bool
+    metrics: dict
+    message: str = ""
+
+
+def load_manifest(directory) -> tuple[Path, GoldenManifest]:
+    from tissuerender.scene.load import _validation_error, read_toml
+
+    directory = Path(directory)
+    path = directory / "manifest.toml"
+    if not directory.is_dir():
+        raise UserError(f"{directory}: not a folder (expected a golden-image folder with manifest.toml)")
+    data = read_toml(path)
+    try:
+        manifest = GoldenManifest.model_validate(data)
+    except ValidationError as e:
+        raise _validation_error(path, e) from None
+    names = [img.name for img in manifest.image]
+    if len(set(names)) != len(names):
+        raise SceneError(path, "image", f"expected unique names, found {names}")
+    return path, manifest
+
+
+def _render(entry: GoldenImage, directory: Path, seed: int | None = None) -> np.ndarray:
+    from tissuerender import load_scene, render_image
+
+    scene = load_scene((directory / entry.scene).resolve())
+    return render_image(scene, seed=seed, resolution=tuple(entry.resolution))
+
+
+def _to_float(img_u8: np.ndarray) -> np.ndarray:
+    return img_u8.astype(np.float32) / 255.0
+
+
+def psnr(reference: np.ndarray, test: np.ndarray) -> float:
+    mse = float(np.mean((reference.astype(np.float64) - test.astype(np.float64)) ** 2))
+    return math.inf if mse == 0.0 else 10.0 * math.log10(1.0 / mse)
+
+
+def flip(reference: np.ndarray, test: np.ndarray) -> tuple[float, np.ndarray]:
+    """Mean FLIP error and the (H, W, 3) magma error map of two LDR sRGB images in [0, 1]."""
+    import flip_evaluator
+
+    error_map, mean, _ = flip_evaluator.evaluate(np.ascontiguousarray(reference), np.ascontiguousarray(test),
+                                                 "LDR", applyMagma=True)
+    return float(mean), np.asarray(error_map)
+
+
+def _seeds(n: int, offset: int) -> list[int]:
+    return [offset + k for k in range(n)]
+
+
+def _stats(entry: GoldenImage, directory: Path, offset: int) -> tuple[np.ndarray, np.ndarray]:
+    renders = np.stack([_to_float(_render(entry, directory, seed)) for seed in _seeds(entry.n_seeds, offset)])
+    return renders.mean(axis=0), renders.var(axis=0, ddof=1)
+
+
+def z_test(mean_ref, var_ref, n_ref, mean_new, var_new, n_new, var_floor=1e-8):
+    """Per-pixel two-sample z statistics and two-sided p-values."""
+    se = np.sqrt(np.maximum(var_ref, var_floor) / n_ref + np.maximum(var_new, var_floor) / n_new)
+    z = (mean_new - mean_ref) / se
+    p = np.vectorize(math.erfc)(np.abs(z) / math.sqrt(2.0))
+    return z, p
+
+
+def _write_png(path: Path, image01: np.ndarray) -> None:
+    from PIL import Image
+
+    from tissuerender.pipeline import write_atomic
+
+    rgb = (np.clip(image01, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    write_atomic(path, lambda tmp: Image.fromarray(rgb).save(tmp, format="PNG"))
+
+
+def _read_png(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    if not path.is_file():
+        raise UserError(f"{path}: stored golden image missing; run `tissuerender golden update {path.parent}`")
+    return np.asarray(Image.open(path).convert("RGB"))
+
+
+def update(directory, only: str | None = None) -> list[Path]:
+    """Render every listed image and store it (PNG; plus mean/variance for statistical mode)."""
+    directory = Path(directory)
+    _, manifest = load_manifest(directory)
+    written = []
+    for entry in manifest.image:
+        if only and entry.name != only:
+            continue
+        if entry.mode == "exact":
+            _write_png(directory / f"{entry.name}.png", _to_float(_render(entry, directory)))
+        else:
+            mean, var = _stats(entry, directory, offset=0)
+            _write_png(directory / f"{entry.name}.png", mean)
+            np.savez_compressed(directory / f"{entry.name}.stats.npz", mean=mean.astype(np.float32),
+                                var=var.astype(np.float32), n=np.int64(entry.n_seeds))
+        written.append(directory / f"{entry.name}.png")
+    return written
+
+
+def check(directory, only: str | None = None, write_failures: bool = True) -> list[Result]:
+    """Compare fresh renders with the stored images; returns one :class:`Result` per image."""
+    directory = Path(directory)
+    _, manifest = load_manifest(directory)
+    results = []
+    for entry in manifest.image:
+        if only and entry.name != only:
+            continue
+        if entry.mode == "exact":
+            stored = _to_float(_read_png(directory / f"{entry.name}.png"))
+            new = _to_float(_render(entry, directory))
+            if stored.shape != new.shape:
+                results.append(Result(entry.name, "exact", False, {}, f"size {stored.shape} != {new.shape}"))
+                continue
+            mean_flip, error_map = flip(stored, new)
+            value = psnr(stored, new)
+            ok = mean_flip <= entry.flip_max and value >= entry.psnr_min
+            metrics = {"flip": mean_flip, "psnr": value}
+            message = f"FLIP {mean_flip:.4f} (max {entry.flip_max}), PSNR {value:.1f} dB (min {entry.psnr_min})"
+            diff = error_map
+        else:
+            stats_path = directory / f"{entry.name}.stats.npz"
+            if not stats_path.is_file():
+                raise UserError(f"{stats_path}: stored statistics missing; run `tissuerender golden update {directory}`")
+            ref = np.load(stats_path)
+            mean, var = _stats(entry, directory, offset=100_000)
+            z, p = z_test(ref["mean"], ref["var"], int(ref["n"]), mean, var, entry.n_seeds)
+            threshold = entry.alpha / p.size
+            ok = float(p.min()) >= threshold
+            metrics = {"min_p": float(p.min()), "threshold": threshold, "max_abs_z": float(np.abs(z).max())}
+            message = f"min p {p.min():.3g} (Bonferroni threshold {threshold:.3g}), max |z| {np.abs(z).max():.2f}"
+            new = mean
+            diff = np.clip(np.abs(z) / 10.0, 0.0, 1.0)
+        if not ok and write_failures:
+            failures = directory / "failures"
+            _write_png(failures / f"{entry.name}.new.png", new)
+            _write_png(failures / f"{entry.name}.diff.png", diff)
+        results.append(Result(entry.name, entry.mode, bool(ok), metrics, message))
+    return results
+
+
+def _cmd_check(args) -> int:
+    results = check(args.dir, only=args.only)
+    for r in results:
+        print(f"{'pass' if r.passed else 'FAIL'}  {r.name:20s} [{r.mode}] {r.message}")
+    failed = [r for r in results if not r.passed]
+    print(f"{len(results) - len(failed)} passed, {len(failed)} failed")
+    return 1 if failed else 0
+
+
+def _cmd_update(args) -> int:
+    for path in update(args.dir, only=args.only):
+        print(f"wrote {path}")
+    return 0
+
+
+def add_cli(subparsers) -> None:
+    golden = subparsers.add_parser("golden", help="golden-image regression checks")
+    sub = golden.add_subparsers(dest="golden_command", required=True)
+    for name, func, text in (("check", _cmd_check, "render and compare with the stored images"),
+                             ("update", _cmd_update, "render and store the images")):
+        p = sub.add_parser(name, help=text)
+        p.add_argument("dir", help="folder holding manifest.toml")
+        p.add_argument("--only", default=None, help="just the image with this name")
+        p.set_defaults(func=func)
