@@ -74,18 +74,37 @@ def apply_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens: Lens, backend: 
 
     Without a tone map in the chain the result is the linear image clipped to [0, 1].
     """
-    if backend == "osmesa":
-        raise OSMesaUnavailable("the osmesa post-effects backend is not part of this build yet; "
-                                "use backend = \"numpy\" or \"auto\"")
-    if backend not in ("auto", "numpy"):
+    if backend not in ("auto", "numpy", "osmesa"):
         raise ValueError(f"unknown backend {backend!r}; expected auto, numpy or osmesa")
+    used = backend
+    if backend == "auto":
+        used = "osmesa" if osmesa_available() else "numpy"
+    run = apply_effect
+    if used == "osmesa":
+        from postfx import osmesa
+
+        osmesa.Context.get()  # raises OSMesaUnavailable naming libosmesa6 when it cannot run
+        run = osmesa.apply_effect
     img = np.ascontiguousarray(hdr, dtype=np.float32)
     seconds = {}
     for name, params in chain:
         start = time.perf_counter()
-        img = apply_effect(name, img, depth, params, lens).astype(np.float32, copy=False)
+        img = run(name, img, depth, params, lens).astype(np.float32, copy=False)
         seconds[name] = time.perf_counter() - start
-    return ChainResult(np.clip(img, 0.0, 1.0), seconds, "numpy")
+    return ChainResult(np.clip(img, 0.0, 1.0), seconds, used)
+
+
+def osmesa_available() -> bool:
+    """True when the OSMesa backend can run here (libOSMesa loads and a context can be created)."""
+    from postfx import osmesa
+
+    if not osmesa.library_available():
+        return False
+    try:
+        osmesa.Context.get()
+    except OSMesaUnavailable:
+        return False
+    return True
 
 
 def to_uint8(image: np.ndarray) -> np.ndarray:

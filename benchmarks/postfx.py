@@ -1,0 +1,69 @@
+"""Post-effects cost: milliseconds per effect on a 640x480 frame, NumPy reference vs OSMesa GLSL.
+
+Usage: .venv/bin/python benchmarks/postfx.py [--quick]
+Last line: one JSON object with numpy_ms_total, osmesa_ms_total and "<effect>_<backend>_ms" keys.
+Each figure is the median of several runs after one warm-up (compilation, context creation).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+
+# This script is called postfx.py: keep its own folder off the import path so that
+# "import postfx" finds the package, not this file.
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirname(os.path.abspath(__file__))]
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+
+import postfx  # noqa: E402
+from postfx import osmesa  # noqa: E402
+from postfx.params import ChromaticAberration, DepthOfField, LaparoscopeMask, Tonemap  # noqa: E402
+
+W, H = 640, 480
+CHAIN = [("depth_of_field", DepthOfField(focus_distance=0.1, aperture=0.002, max_radius_px=8.0)),
+         ("chromatic_aberration", ChromaticAberration()),
+         ("tonemap", Tonemap()),
+         ("laparoscope_mask", LaparoscopeMask())]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args()
+    repeats = 3 if args.quick else 9
+    rng = np.random.default_rng(0)
+    hdr = (rng.random((H, W, 3)) * 3.0).astype(np.float32)
+    depth = (0.05 + rng.random((H, W)) * 0.2).astype(np.float32)
+    lens = postfx.Lens(70.0, W, H)
+    backends = ["numpy"] + (["osmesa"] if osmesa.library_available() else [])
+    result: dict = {}
+    for backend in backends:
+        run = postfx.apply_effect if backend == "numpy" else osmesa.apply_effect
+        total = 0.0
+        for name, params in CHAIN:
+            run(name, hdr, depth, params, lens)  # warm-up
+            times = []
+            for _ in range(repeats):
+                start = time.perf_counter()
+                run(name, hdr, depth, params, lens)
+                times.append((time.perf_counter() - start) * 1e3)
+            ms = float(np.median(times))
+            total += ms
+            result[f"{name}_{backend}_ms"] = round(ms, 2)
+            print(f"{backend:7s} {name:22s} {ms:8.2f} ms")
+        result[f"{backend}_ms_total"] = round(total, 2)
+        print(f"{backend:7s} {'total':22s} {total:8.2f} ms")
+    if "osmesa" not in backends:
+        result["osmesa_ms_total"] = None
+        result["osmesa_skipped"] = "libOSMesa missing (Debian package libosmesa6)"
+    result["machine"] = f"{platform.machine()} {os.cpu_count()} cpus, numba threads {numba.get_num_threads()}"
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()
