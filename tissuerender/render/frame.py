@@ -270,7 +270,10 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
     sss = None
     if settings.sss:
         with rec.run("thickness"):
-            thickness = bvh.closest_hit(pos - 2 * eps * n, -n)
+            # inward rays start just below the surface (a small offset: a self-hit of the front face
+            # is at t ~ 0, while a thin layer's back face may be closer than the shadow-ray offset)
+            inward = 1e-6 * max(scale, 1e-9)
+            thickness = bvh.closest_hit(pos - inward * n, -n) + inward
             gbuffer["thickness"] = thickness
             k_sss = np.array([o.k_sss for o in optics], float)[mat]
             sigma = np.array([o.sigma for o in optics], float).reshape(-1, 3)[mat]
