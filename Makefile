@@ -37,8 +37,10 @@ system-deps:
 render: setup
 	$(VENV)/bin/tissuerender render $(SCENE) -o $(OUT)
 
+# One numba thread per pytest worker: two workers already fill the two cores, and oversubscribed
+# parallel kernels slow down badly.
 test: setup
-	$(PY) -m pytest -n $(PYTEST_WORKERS) -q tests
+	NUMBA_NUM_THREADS=1 $(PY) -m pytest -n $(PYTEST_WORKERS) -q tests
 
 bench: setup
 	for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b --quick || exit 1; done

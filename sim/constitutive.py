@@ -1,0 +1,162 @@
+"""Constitutive models shared by every integrator: energy density Psi(F), first Piola stress P(F) and
+the tangent dP/dF, vectorised over tets (arrays ``F (m, 3, 3)``, per-tet ``mu, lam (m,)``).
+
+Models (``MODEL_CODES``):
+
+- ``stvk`` — St Venant–Kirchhoff: ``E = (F^T F - I)/2``, ``Psi = mu E:E + lam/2 tr(E)^2``, ``P = F S``.
+- ``neo_hookean`` — the compressible form of Zhang eq. 5.35 (ABAQUS C10 = mu/2, D1 = 2/kappa):
+  ``Psi = mu/2 (I1 - 3) - mu log J + lam/2 (log J)^2``, ``P = mu (F - F^-T) + lam log J F^-T``
+  (Qian Table 4.1 without its stray mu, DESIGN.md). Undefined for J <= 0.
+- ``stable_neo_hookean`` — Macklin & Müller (2021), the form XPBD uses:
+  ``Psi = mu/2 (I_C - 3) + lam/2 (J - gamma)^2 - lam/2 (1 - gamma)^2`` with ``gamma = 1 + mu/lam`` so
+  the rest state is stress free (the last constant makes Psi(I) = 0); ``P = mu F + lam (J - gamma)
+  cof F``. Defined and smooth for inverted F.
+- ``anisotropic_neo_hookean`` — ``neo_hookean`` plus a fibre term (Zhang eq. 5.37, DESIGN.md's fix of
+  5.38): ``Psi_f = eta/2 (I4bar - 1)^2``, ``I4bar = J^(-2/3) a.C a``; default ``eta = 2 mu``.
+
+The tangent is computed by complex-step differentiation of P (Squire & Trapp 1998): exact to
+rounding, for every model, with no hand-derived fourth-order tensors to get wrong.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+MODEL_CODES = {"stvk": 0, "neo_hookean": 1, "stable_neo_hookean": 2, "anisotropic_neo_hookean": 3}
+
+
+def _det(F):
+    return (F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
+            - F[:, 0, 1] * (F[:, 1, 0] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 0])
+            + F[:, 0, 2] * (F[:, 1, 0] * F[:, 2, 1] - F[:, 1, 1] * F[:, 2, 0]))
+
+
+def cofactor(F):
+    """cof F = det(F) F^-T, written with cross products of F's columns (valid for singular F)."""
+    f0, f1, f2 = F[:, :, 0], F[:, :, 1], F[:, :, 2]
+    return np.stack([np.cross(f1, f2), np.cross(f2, f0), np.cross(f0, f1)], axis=2)
+
+
+def energy_density(name: str, F, mu, lam, eta=None, a0=None):
+    """Psi per tet [J/m^3]."""
+    C = np.einsum("mki,mkj->mij", F, F)
+    I1 = np.einsum("mii->m", C)
+    J = _det(F)
+    if name == "stvk":
+        E = 0.5 * (C - np.eye(3))
+        return mu * np.einsum("mij,mij->m", E, E) + 0.5 * lam * np.einsum("mii->m", E) ** 2
+    if name == "stable_neo_hookean":
+        gamma = 1.0 + mu / lam
+        return 0.5 * mu * (I1 - 3.0) + 0.5 * lam * (J - gamma) ** 2 - 0.5 * lam * (1.0 - gamma) ** 2
+    if name in ("neo_hookean", "anisotropic_neo_hookean"):
+        logJ = np.log(J)
+        psi = 0.5 * mu * (I1 - 3.0) - mu * logJ + 0.5 * lam * logJ**2
+        if name == "anisotropic_neo_hookean":
+            I4 = np.einsum("mi,mij,mj->m", a0, C, a0)
+            psi = psi + 0.5 * eta * (J ** (-2.0 / 3.0) * I4 - 1.0) ** 2
+        return psi
+    raise KeyError(f"unknown constitutive model {name!r}; expected one of {', '.join(MODEL_CODES)}")
+
+
+def first_piola(name: str, F, mu, lam, eta=None, a0=None):
+    """P = dPsi/dF per tet (m, 3, 3) [Pa]. Works on complex F (for the complex-step tangent)."""
+    m = (slice(None), None, None)
+    if name == "stvk":
+        C = np.einsum("mki,mkj->mij", F, F)
+        E = 0.5 * (C - np.eye(3))
+        S = 2.0 * mu[m] * E + lam[m] * np.einsum("mii->m", E)[m] * np.eye(3)
+        return F @ S
+    cof = cofactor(F)
+    J = _det(F)
+    if name == "stable_neo_hookean":
+        gamma = 1.0 + mu / lam
+        return mu[m] * F + (lam * (J - gamma))[m] * cof
+    if name in ("neo_hookean", "anisotropic_neo_hookean"):
+        FinvT = cof / J[m]
+        P = mu[m] * (F - FinvT) + (lam * np.log(J))[m] * FinvT
+        if name == "anisotropic_neo_hookean":
+            C = np.einsum("mki,mkj->mij", F, F)
+            I4 = np.einsum("mi,mij,mj->m", a0, C, a0)
+            Jm23 = J ** (-2.0 / 3.0)
+            # dI4bar/dF = J^(-2/3) (2 F a a^T - 2/3 I4 F^-T)
+            dI4bar = Jm23[m] * (2.0 * np.einsum("mij,mj,mk->mik", F, a0, a0) - (2.0 / 3.0) * I4[m] * FinvT)
+            P = P + (eta * (Jm23 * I4 - 1.0))[m] * dI4bar
+        return P
+    raise KeyError(f"unknown constitutive model {name!r}; expected one of {', '.join(MODEL_CODES)}")
+
+
+def tangent(name: str, F, mu, lam, eta=None, a0=None, h: float = 1e-30):
+    """dP/dF as (m, 9, 9) (row = P_ij, column = F_kl, row-major), by complex step."""
+    m = F.shape[0]
+    out = np.empty((m, 9, 9))
+    Fc = F.astype(np.complex128)
+    for col in range(9):
+        step = np.zeros((3, 3), np.complex128)
+        step.flat[col] = 1j * h
+        out[:, :, col] = first_piola(name, Fc + step, mu, lam, eta, a0).reshape(m, 9).imag / h
+    return out
+
+
+def project_psd(H):
+    """Clamp the negative eigenvalues of symmetric matrices (..., n, n) to zero."""
+    w, V = np.linalg.eigh(0.5 * (H + np.swapaxes(H, -1, -2)))
+    return np.einsum("...ij,...j,...kj->...ik", V, np.maximum(w, 0.0), V)
+
+
+def model_params(model):
+    """(name, mu, lam, eta, a0) of a :class:`sim.model.Model`."""
+    eta = a0 = None
+    if model.constitutive == "anisotropic_neo_hookean":
+        eta = np.broadcast_to(np.asarray(model.material_params.get("eta", 2.0 * model.mu), float), model.mu.shape)
+        a0 = model.fibre if model.fibre is not None else np.tile([0.0, 0.0, 1.0], (model.n_tets, 1))
+    return model.constitutive, model.mu, model.lam, eta, a0
+
+
+def deformation_gradients(x, tets, Dm_inv):
+    """F = Ds Dm^-1 per tet."""
+    p = x[tets]
+    Ds = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)
+    return Ds @ Dm_inv
+
+
+def elastic_energy(model, x) -> float:
+    name, mu, lam, eta, a0 = model_params(model)
+    F = deformation_gradients(x, model.tets, model.Dm_inv)
+    return float(np.sum(model.volume * energy_density(name, F, mu, lam, eta, a0)))
+
+
+def elastic_gradient(model, x) -> np.ndarray:
+    """dE/dx (n, 3): node k = 1..3 of a tet gets V P Dm^-T column k, node 0 minus their sum."""
+    name, mu, lam, eta, a0 = model_params(model)
+    F = deformation_gradients(x, model.tets, model.Dm_inv)
+    P = first_piola(name, F, mu, lam, eta, a0)
+    G = model.volume[:, None, None] * P @ np.swapaxes(model.Dm_inv, 1, 2)  # (m, 3, 3): columns = nodes 1..3
+    g = np.zeros_like(x)
+    for k in range(3):
+        np.add.at(g, model.tets[:, k + 1], G[:, :, k])
+    np.add.at(g, model.tets[:, 0], -G.sum(axis=2))
+    return g
+
+
+def elastic_forces(model, x) -> np.ndarray:
+    return -elastic_gradient(model, x)
+
+
+def dF_dx(Dm_inv):
+    """(m, 9, 12): derivative of vec(F) (row-major) with respect to the 12 node coordinates."""
+    m = Dm_inv.shape[0]
+    B = np.zeros((m, 9, 12))
+    weights = np.concatenate([-Dm_inv.sum(axis=1, keepdims=True), Dm_inv], axis=1)  # (m, 4, 3): dF_ij/dx_a,i
+    for a in range(4):
+        for i in range(3):
+            for j in range(3):
+                B[:, 3 * i + j, 3 * a + i] = weights[:, a, j]
+    return B
+
+
+def element_hessians(model, x, project: bool = True) -> np.ndarray:
+    """(m, 12, 12) Hessians V B^T (dP/dF) B, optionally PSD-projected per element."""
+    name, mu, lam, eta, a0 = model_params(model)
+    F = deformation_gradients(x, model.tets, model.Dm_inv)
+    B = dF_dx(model.Dm_inv)
+    H = model.volume[:, None, None] * np.einsum("mpi,mpq,mqj->mij", B, tangent(name, F, mu, lam, eta, a0), B)
+    return project_psd(H) if project else H
