@@ -26,21 +26,22 @@ from sim.probe import resolve_contact
 
 
 @njit(cache=True, inline="always")
+def _deformation_gradient(x, i0, i1, i2, i3, B, F):
+    """F = Ds Dm^-1 of one tet into ``F`` (3, 3)."""
+    for r in range(3):
+        a = x[i1, r] - x[i0, r]
+        b = x[i2, r] - x[i0, r]
+        c = x[i3, r] - x[i0, r]
+        for col in range(3):
+            F[r, col] = a * B[0, col] + b * B[1, col] + c * B[2, col]
+
+
+@njit(cache=True, inline="always")
 def _project_tet(t, x, tets, Dm_inv, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, dt2, out, accumulate, scale):
     i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
     B = Dm_inv[t]
-    # Ds columns
-    d10 = x[i1, 0] - x[i0, 0]; d11 = x[i1, 1] - x[i0, 1]; d12 = x[i1, 2] - x[i0, 2]
-    d20 = x[i2, 0] - x[i0, 0]; d21 = x[i2, 1] - x[i0, 1]; d22 = x[i2, 2] - x[i0, 2]
-    d30 = x[i3, 0] - x[i0, 0]; d31 = x[i3, 1] - x[i0, 1]; d32 = x[i3, 2] - x[i0, 2]
-    # F = Ds B ; F[r, c]
     F = np.empty((3, 3))
-    for r in range(3):
-        a = (d10, d11, d12)[r]
-        b = (d20, d21, d22)[r]
-        c = (d30, d31, d32)[r]
-        for col in range(3):
-            F[r, col] = a * B[0, col] + b * B[1, col] + c * B[2, col]
+    _deformation_gradient(x, i0, i1, i2, i3, B, F)
     w0, w1, w2, w3 = w[i0], w[i1], w[i2], w[i3]
     for which in range(2):
         G = np.empty((3, 3))  # dC/dF
@@ -93,15 +94,7 @@ def _project_tet(t, x, tets, Dm_inv, w, alpha_dev, alpha_hyd, gamma, lam_dev, la
                     x[ids[k], r] += delta
         if not accumulate:
             # refresh F after the first constraint so the second sees the corrected positions
-            d10 = x[i1, 0] - x[i0, 0]; d11 = x[i1, 1] - x[i0, 1]; d12 = x[i1, 2] - x[i0, 2]
-            d20 = x[i2, 0] - x[i0, 0]; d21 = x[i2, 1] - x[i0, 1]; d22 = x[i2, 2] - x[i0, 2]
-            d30 = x[i3, 0] - x[i0, 0]; d31 = x[i3, 1] - x[i0, 1]; d32 = x[i3, 2] - x[i0, 2]
-            for r in range(3):
-                a = (d10, d11, d12)[r]
-                b = (d20, d21, d22)[r]
-                c = (d30, d31, d32)[r]
-                for col in range(3):
-                    F[r, col] = a * B[0, col] + b * B[1, col] + c * B[2, col]
+            _deformation_gradient(x, i0, i1, i2, i3, B, F)
 
 
 @njit(cache=True, parallel=True)

@@ -125,9 +125,10 @@ def z_test(mean_ref, var_ref, n_ref, mean_new, var_new, n_new, var_floor=1e-8):
 def _write_png(path: Path, image01: np.ndarray) -> None:
     from PIL import Image
 
+    import postfx
     from tissuerender.pipeline import write_atomic
 
-    rgb = (np.clip(image01, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    rgb = postfx.to_uint8(image01)
     write_atomic(path, lambda tmp: Image.fromarray(rgb).save(tmp, format="PNG"))
 
 
