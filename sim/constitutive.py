@@ -158,5 +158,6 @@ def element_hessians(model, x, project: bool = True) -> np.ndarray:
     name, mu, lam, eta, a0 = model_params(model)
     F = deformation_gradients(x, model.tets, model.Dm_inv)
     B = dF_dx(model.Dm_inv)
-    H = model.volume[:, None, None] * np.einsum("mpi,mpq,mqj->mij", B, tangent(name, F, mu, lam, eta, a0), B)
+    T = tangent(name, F, mu, lam, eta, a0)
+    H = model.volume[:, None, None] * np.matmul(np.matmul(B.transpose(0, 2, 1), T), B)
     return project_psd(H) if project else H

@@ -116,13 +116,30 @@ class ReferenceIntegrator:
                                      f"(relative gradient {self.last_residual:.2e} after {self.max_newton} iterations)")
         return x
 
+    def _load_path(self, x, t0, t_end):
+        """Quasi-static equilibria along the load path, ``load_steps`` increments from ``t0`` to ``t_end``;
+        an increment whose Newton solve fails is halved (down to 1/64 of the initial one) and the
+        increment grows back after each success."""
+        full = (t_end - t0) / self.load_steps
+        inc, t = full, t0
+        while t < t_end - 1e-12 * max(abs(t_end), 1.0):
+            t_next = min(t + inc, t_end)
+            try:
+                x = self.solve(x, None, t_next - t, t_next)
+            except SimulationDiverged:
+                if inc <= full / 64:
+                    raise
+                inc *= 0.5
+                continue
+            t = t_next
+            inc = min(2.0 * inc, full)
+        return x
+
     def step(self, state: State, dt: float) -> State:
         t_end = state.t + dt
         if self.mode == "quasistatic":
-            x = state.x
-            for k in range(1, self.load_steps + 1):
-                x = self.solve(x, None, dt, state.t + dt * k / self.load_steps)
-            return State(x=x, v=np.zeros_like(x), t=t_end, private=state.private)
+            return State(x=self._load_path(state.x, state.t, t_end), v=np.zeros_like(state.x), t=t_end,
+                         private=state.private)
         x_tilde = state.x + dt * state.v
         x = self.solve(x_tilde, x_tilde, dt, t_end)
         if not np.isfinite(x).all():

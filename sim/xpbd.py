@@ -17,107 +17,17 @@ tets per iteration (with relaxation) instead.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
 
+from sim import xpbd_kernels as kernels
 from sim.coloring import colour_tets
 from sim.integrators import SimulationDiverged
 from sim.model import Model, State
 from sim.probe import resolve_contact
 
 
-@njit(cache=True, inline="always")
-def _deformation_gradient(x, i0, i1, i2, i3, B, F):
-    """F = Ds Dm^-1 of one tet into ``F`` (3, 3)."""
-    for r in range(3):
-        a = x[i1, r] - x[i0, r]
-        b = x[i2, r] - x[i0, r]
-        c = x[i3, r] - x[i0, r]
-        for col in range(3):
-            F[r, col] = a * B[0, col] + b * B[1, col] + c * B[2, col]
-
-
-@njit(cache=True, inline="always")
-def _project_tet(t, x, tets, Dm_inv, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, dt2, out, accumulate, scale):
-    i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
-    B = Dm_inv[t]
-    F = np.empty((3, 3))
-    _deformation_gradient(x, i0, i1, i2, i3, B, F)
-    w0, w1, w2, w3 = w[i0], w[i1], w[i2], w[i3]
-    for which in range(2):
-        G = np.empty((3, 3))  # dC/dF
-        if which == 0:
-            norm = np.sqrt((F * F).sum())
-            if norm < 1e-12:
-                continue
-            C = norm
-            for r in range(3):
-                for col in range(3):
-                    G[r, col] = F[r, col] / norm
-            alpha = alpha_dev[t]
-            lam_acc = lam_dev
-        else:
-            # cofactor columns: f2 x f3, f3 x f1, f1 x f2 (f = columns of F)
-            G[0, 0] = F[1, 1] * F[2, 2] - F[2, 1] * F[1, 2]
-            G[1, 0] = F[2, 1] * F[0, 2] - F[0, 1] * F[2, 2]
-            G[2, 0] = F[0, 1] * F[1, 2] - F[1, 1] * F[0, 2]
-            G[0, 1] = F[1, 2] * F[2, 0] - F[2, 2] * F[1, 0]
-            G[1, 1] = F[2, 2] * F[0, 0] - F[0, 2] * F[2, 0]
-            G[2, 1] = F[0, 2] * F[1, 0] - F[1, 2] * F[0, 0]
-            G[0, 2] = F[1, 0] * F[2, 1] - F[2, 0] * F[1, 1]
-            G[1, 2] = F[2, 0] * F[0, 1] - F[0, 0] * F[2, 1]
-            G[2, 2] = F[0, 0] * F[1, 1] - F[1, 0] * F[0, 1]
-            C = F[0, 0] * G[0, 0] + F[1, 0] * G[1, 0] + F[2, 0] * G[2, 0] - gamma[t]
-            alpha = alpha_hyd[t]
-            lam_acc = lam_hyd
-        # grad wrt x1..x3 = G B^T (columns); x0 = -sum
-        g = np.zeros((4, 3))
-        for k in range(3):
-            for r in range(3):
-                g[k + 1, r] = G[r, 0] * B[k, 0] + G[r, 1] * B[k, 1] + G[r, 2] * B[k, 2]
-        for r in range(3):
-            g[0, r] = -(g[1, r] + g[2, r] + g[3, r])
-        denom = (w0 * (g[0] ** 2).sum() + w1 * (g[1] ** 2).sum() + w2 * (g[2] ** 2).sum()
-                 + w3 * (g[3] ** 2).sum())
-        at = alpha / dt2
-        if denom + at < 1e-30:
-            continue
-        dl = scale * (-C - at * lam_acc[t]) / (denom + at)
-        lam_acc[t] += dl
-        ids = (i0, i1, i2, i3)
-        ws = (w0, w1, w2, w3)
-        for k in range(4):
-            for r in range(3):
-                delta = ws[k] * g[k, r] * dl
-                if accumulate:
-                    out[ids[k], r] += delta
-                else:
-                    x[ids[k], r] += delta
-        if not accumulate:
-            # refresh F after the first constraint so the second sees the corrected positions
-            _deformation_gradient(x, i0, i1, i2, i3, B, F)
-
-
-@njit(cache=True, parallel=True)
-def _gauss_seidel_colour(idx, x, tets, Dm_inv, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, dt2, dummy):
-    for j in prange(idx.shape[0]):
-        _project_tet(idx[j], x, tets, Dm_inv, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, dt2, dummy, False, 1.0)
-
-
-@njit(cache=True)
-def _jacobi_sweep(x, tets, Dm_inv, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, dt2, tet_scale):
-    # Every tet sees the same positions; its step is scaled by relaxation / (most tets sharing one of
-    # its nodes), and its multiplier takes the same scaled step, so lambda stays consistent with x.
-    out = np.zeros_like(x)
-    for t in range(tets.shape[0]):
-        _project_tet(t, x, tets, Dm_inv, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, dt2, out, True,
-                     tet_scale[t])
-    for i in range(x.shape[0]):
-        for r in range(3):
-            x[i, r] += out[i, r]
-
-
 class XPBD:
     """XPBD integrator; settings: ``substeps``, ``iterations``, ``solver`` ("gauss_seidel" | "jacobi"),
+    ``coupling`` ("coupled": both constraints of a tet in one 2x2 solve | "sequential": in turn),
     ``relaxation`` (Jacobi), ``damping`` [1/s] (velocity decay ``exp(-damping dt)``)."""
 
     name = "xpbd"
@@ -131,20 +41,36 @@ class XPBD:
         self.damping = float(settings.get("damping", 0.0))
         if self.solver not in ("gauss_seidel", "jacobi"):
             raise ValueError(f"xpbd solver must be 'gauss_seidel' or 'jacobi', found {self.solver!r}")
+        coupling = settings.get("coupling", "coupled")
+        if coupling not in ("coupled", "sequential"):
+            raise ValueError(f"xpbd coupling must be 'coupled' or 'sequential', found {coupling!r}")
+        self.mode = 1 if coupling == "coupled" else 0
         m = model
-        self.tets = np.ascontiguousarray(m.tets, dtype=np.int64)
-        self.Dm_inv = np.ascontiguousarray(m.Dm_inv)
-        self.alpha_dev = 1.0 / (m.mu * m.volume)
+        # Per-tet data is stored in colour order, so each colour is a contiguous range read sequentially.
+        colours = colour_tets(np.ascontiguousarray(m.tets, dtype=np.int64), m.n_nodes)
+        order = np.concatenate(colours).astype(np.int64)
+        self.tet_order = order
+        self.colour_start = np.concatenate([[0], np.cumsum([c.size for c in colours])]).astype(np.int64)
+        self.tets = np.ascontiguousarray(m.tets[order], dtype=np.int64)
+        self.Dm_inv = np.ascontiguousarray(m.Dm_inv[order])
+        mu, lam, volume = m.mu[order], m.lam[order], m.volume[order]
+        self.alpha_dev = 1.0 / (mu * volume)
         # lam = 0 (nu = 0): no volume term; an effectively infinite compliance switches it off.
-        has_lam = m.lam > 0.0
-        self.alpha_hyd = np.where(has_lam, 1.0 / np.where(has_lam, m.lam, 1.0) / m.volume, 1e30)
-        self.gamma = np.where(has_lam, 1.0 + m.mu / np.where(has_lam, m.lam, 1.0), 1.0)
+        has_lam = lam > 0.0
+        self.alpha_hyd = np.where(has_lam, 1.0 / np.where(has_lam, lam, 1.0) / volume, 1e30)
+        self.gamma = np.where(has_lam, 1.0 + mu / np.where(has_lam, lam, 1.0), 1.0)
         self.w = m.inverse_mass()
-        self.kinematic, _ = m.kinematic_targets(0.0)
-        self.colours = colour_tets(self.tets, m.n_nodes) if self.solver == "gauss_seidel" else None
         counts = np.bincount(self.tets.ravel(), minlength=m.n_nodes).astype(np.float64)
         self.tet_scale = self.relaxation / counts[self.tets].max(axis=1)
         self.f_ext_acc = m.nodal_external_force() * np.where(self.w > 0, self.w, 0.0)[:, None]
+
+    def _sweeps(self, x, lam_dev, lam_hyd, inv_dt2, iterations):
+        args = (x, self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd, self.gamma, lam_dev, lam_hyd,
+                inv_dt2, self.mode)
+        if self.solver == "gauss_seidel":
+            kernels.gauss_seidel(*args, self.colour_start, iterations)
+        else:
+            kernels.jacobi(*args, self.tet_scale, iterations)
 
     def step(self, state: State, dt: float) -> State:
         m = self.model
@@ -154,7 +80,6 @@ class XPBD:
         t = state.t
         lam_dev = np.zeros(m.n_tets)
         lam_hyd = np.zeros(m.n_tets)
-        dummy = np.zeros((1, 3))
         for _ in range(self.substeps):
             t_next = t + h
             x_prev = x.copy()
@@ -163,14 +88,10 @@ class XPBD:
             x[idx] = target
             lam_dev[:] = 0.0
             lam_hyd[:] = 0.0
-            for _ in range(self.iterations):
-                if self.colours is not None:
-                    for colour in self.colours:
-                        _gauss_seidel_colour(colour, x, self.tets, self.Dm_inv, self.w, self.alpha_dev,
-                                             self.alpha_hyd, self.gamma, lam_dev, lam_hyd, h * h, dummy)
-                else:
-                    _jacobi_sweep(x, self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd, self.gamma,
-                                  lam_dev, lam_hyd, h * h, self.tet_scale)
+            # with probes, contact is resolved after every iteration; else all iterations run in one call
+            per_call = 1 if m.probes else self.iterations
+            for _ in range(self.iterations // per_call):
+                self._sweeps(x, lam_dev, lam_hyd, 1.0 / (h * h), per_call)
                 for probe in m.probes:
                     resolve_contact(x, probe, t_next, self.w)
             v = (x - x_prev) / h

@@ -118,16 +118,19 @@ def test_reference_converges_and_xpbd_matches_it_on_a_hanging_column():
     ref = ReferenceIntegrator(model, {"mode": "quasistatic"})
     x_ref = ref.step(State.at_rest(model), 1.0).x
     assert ref.last_residual <= 1e-8 and ref.last_iterations < 30
-    xpbd = XPBD(model, {"substeps": 10, "iterations": 20, "damping": 20.0})  # converged: 20 and 100 agree
-    state = State.at_rest(model)
-    for _ in range(300):
-        state = xpbd.step(state, 0.01)
-    u_ref, u_xpbd = x_ref - mesh.points, state.x - mesh.points
-    rel = np.linalg.norm(u_xpbd - u_ref) / np.linalg.norm(u_ref)
-    # Measured: tip within 1 %, relative L2 3.2 % (the lateral Poisson contraction differs more);
-    # the issue's <= 1 % L2 target is not met yet (see the issue note).
-    assert u_xpbd[:, 2].min() == pytest.approx(u_ref[:, 2].min(), rel=0.015)
-    assert rel < 0.04
+    errors = {}
+    for coupling in ("coupled", "sequential"):
+        xpbd = XPBD(model, {"substeps": 10, "iterations": 20, "damping": 20.0, "coupling": coupling})
+        state = State.at_rest(model)
+        for _ in range(300):
+            state = xpbd.step(state, 0.01)
+        u_ref, u_xpbd = x_ref - mesh.points, state.x - mesh.points
+        errors[coupling] = np.linalg.norm(u_xpbd - u_ref) / np.linalg.norm(u_ref)
+        assert u_xpbd[:, 2].min() == pytest.approx(u_ref[:, 2].min(), rel=0.015)
+    # Measured: coupled 0.41 %, sequential 3.2 % (solving the two constraints in turn converges to a
+    # biased fixed point: each correction uses the gradient at a different iterate).
+    assert errors["coupled"] < 0.01
+    assert errors["sequential"] > 2 * errors["coupled"]
 
 
 def test_reference_backward_euler_stays_bounded_at_10x_the_explicit_step():

@@ -49,7 +49,7 @@ def test_few_iterations_make_the_material_softer():
     mesh, model = _column()
     top = select.nodes_on_side(mesh.points, 2, "max")
     converged = -(_settle(model).x[top, 2] - mesh.points[top, 2]).mean()
-    coarse = -(_settle(model, substeps=2, iterations=2).x[top, 2] - mesh.points[top, 2]).mean()
+    coarse = -(_settle(model, substeps=1, iterations=2).x[top, 2] - mesh.points[top, 2]).mean()
     assert coarse > 1.05 * converged
 
 

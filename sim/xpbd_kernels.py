@@ -1,0 +1,172 @@
+"""Numba kernels of the XPBD tet solve (Qian eqs. 4.42–4.44), written in scalars: no array is allocated
+per tet, so the parallel colour loop runs at memory speed.
+
+Per tet with ``F = Ds Dm^-1`` and ``B = Dm^-1`` (rows ``b_k``), a constraint ``C(F)`` with
+``G = dC/dF`` has node gradients ``g_k = G b_k`` (k = 1..3) and ``g_0 = -(g_1 + g_2 + g_3)``.
+Constraints per tet (Macklin & Müller 2021):
+
+- deviatoric ``C_D = ||F||_F``, ``G_D = F / ||F||``, compliance ``alpha_D = 1 / (mu V)``;
+- hydrostatic ``C_H = det F - gamma``, ``G_H = cof F``, compliance ``alpha_H = 1 / (lam V)``.
+
+``mode`` 0 solves them in turn (Gauss–Seidel within the tet, F refreshed in between); mode 1 solves
+the 2×2 system for both multipliers at once (coupled), as Macklin & Müller recommend for nu -> 0.5.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+
+@njit(cache=True, inline="always")
+def _defgrad(x, i0, i1, i2, i3, B, t):
+    ax = x[i1, 0] - x[i0, 0]
+    ay = x[i1, 1] - x[i0, 1]
+    az = x[i1, 2] - x[i0, 2]
+    bx = x[i2, 0] - x[i0, 0]
+    by = x[i2, 1] - x[i0, 1]
+    bz = x[i2, 2] - x[i0, 2]
+    cx = x[i3, 0] - x[i0, 0]
+    cy = x[i3, 1] - x[i0, 1]
+    cz = x[i3, 2] - x[i0, 2]
+    b00, b01, b02 = B[t, 0, 0], B[t, 0, 1], B[t, 0, 2]
+    b10, b11, b12 = B[t, 1, 0], B[t, 1, 1], B[t, 1, 2]
+    b20, b21, b22 = B[t, 2, 0], B[t, 2, 1], B[t, 2, 2]
+    return (ax * b00 + bx * b10 + cx * b20, ax * b01 + bx * b11 + cx * b21, ax * b02 + bx * b12 + cx * b22,
+            ay * b00 + by * b10 + cy * b20, ay * b01 + by * b11 + cy * b21, ay * b02 + by * b12 + cy * b22,
+            az * b00 + bz * b10 + cz * b20, az * b01 + bz * b11 + cz * b21, az * b02 + bz * b12 + cz * b22)
+
+
+@njit(cache=True, inline="always")
+def _cofactor(F):
+    f00, f01, f02, f10, f11, f12, f20, f21, f22 = F
+    return (f11 * f22 - f21 * f12, f12 * f20 - f22 * f10, f10 * f21 - f20 * f11,
+            f21 * f02 - f01 * f22, f22 * f00 - f02 * f20, f20 * f01 - f00 * f21,
+            f01 * f12 - f11 * f02, f02 * f10 - f12 * f00, f00 * f11 - f10 * f01)
+
+
+@njit(cache=True, inline="always")
+def _node_grads(G, B, t):
+    """(g1, g2, g3) as a 9-tuple: g_k[r] = sum_c G[r, c] B[k, c]."""
+    g00, g01, g02, g10, g11, g12, g20, g21, g22 = G
+    b00, b01, b02 = B[t, 0, 0], B[t, 0, 1], B[t, 0, 2]
+    b10, b11, b12 = B[t, 1, 0], B[t, 1, 1], B[t, 1, 2]
+    b20, b21, b22 = B[t, 2, 0], B[t, 2, 1], B[t, 2, 2]
+    return (g00 * b00 + g01 * b01 + g02 * b02, g10 * b00 + g11 * b01 + g12 * b02, g20 * b00 + g21 * b01 + g22 * b02,
+            g00 * b10 + g01 * b11 + g02 * b12, g10 * b10 + g11 * b11 + g12 * b12, g20 * b10 + g21 * b11 + g22 * b12,
+            g00 * b20 + g01 * b21 + g02 * b22, g10 * b20 + g11 * b21 + g12 * b22, g20 * b20 + g21 * b21 + g22 * b22)
+
+
+@njit(cache=True, inline="always")
+def _weighted_dot(g, h, w0, w1, w2, w3):
+    """sum_k w_k g_k . h_k over the four nodes (g_0 = -(g_1+g_2+g_3))."""
+    g0x = -(g[0] + g[3] + g[6])
+    g0y = -(g[1] + g[4] + g[7])
+    g0z = -(g[2] + g[5] + g[8])
+    h0x = -(h[0] + h[3] + h[6])
+    h0y = -(h[1] + h[4] + h[7])
+    h0z = -(h[2] + h[5] + h[8])
+    return (w0 * (g0x * h0x + g0y * h0y + g0z * h0z)
+            + w1 * (g[0] * h[0] + g[1] * h[1] + g[2] * h[2])
+            + w2 * (g[3] * h[3] + g[4] * h[4] + g[5] * h[5])
+            + w3 * (g[6] * h[6] + g[7] * h[7] + g[8] * h[8]))
+
+
+@njit(cache=True, inline="always")
+def _apply(x, i0, i1, i2, i3, w0, w1, w2, w3, g, s):
+    """x_k += w_k g_k s."""
+    x[i0, 0] -= w0 * (g[0] + g[3] + g[6]) * s
+    x[i0, 1] -= w0 * (g[1] + g[4] + g[7]) * s
+    x[i0, 2] -= w0 * (g[2] + g[5] + g[8]) * s
+    x[i1, 0] += w1 * g[0] * s
+    x[i1, 1] += w1 * g[1] * s
+    x[i1, 2] += w1 * g[2] * s
+    x[i2, 0] += w2 * g[3] * s
+    x[i2, 1] += w2 * g[4] * s
+    x[i2, 2] += w2 * g[5] * s
+    x[i3, 0] += w3 * g[6] * s
+    x[i3, 1] += w3 * g[7] * s
+    x[i3, 2] += w3 * g[8] * s
+
+
+@njit(cache=True, inline="always")
+def project_tet(t, x, out, in_place, tets, B, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, inv_dt2, mode,
+                scale):
+    """Project tet ``t``'s two constraints; corrections go to ``out`` (``x`` itself, ``in_place``, for
+    Gauss–Seidel)."""
+    i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+    w0, w1, w2, w3 = w[i0], w[i1], w[i2], w[i3]
+    F = _defgrad(x, i0, i1, i2, i3, B, t)
+    a_d = alpha_dev[t] * inv_dt2
+    a_h = alpha_hyd[t] * inv_dt2
+    norm = np.sqrt(F[0] * F[0] + F[1] * F[1] + F[2] * F[2] + F[3] * F[3] + F[4] * F[4]
+                   + F[5] * F[5] + F[6] * F[6] + F[7] * F[7] + F[8] * F[8])
+    if norm < 1e-12:
+        return
+    inv = 1.0 / norm
+    gd = _node_grads((F[0] * inv, F[1] * inv, F[2] * inv, F[3] * inv, F[4] * inv, F[5] * inv,
+                      F[6] * inv, F[7] * inv, F[8] * inv), B, t)
+    if mode == 1:
+        cof = _cofactor(F)
+        gh = _node_grads(cof, B, t)
+        c_h = F[0] * cof[0] + F[3] * cof[3] + F[6] * cof[6] - gamma[t]
+        a11 = _weighted_dot(gd, gd, w0, w1, w2, w3) + a_d
+        a22 = _weighted_dot(gh, gh, w0, w1, w2, w3) + a_h
+        a12 = _weighted_dot(gd, gh, w0, w1, w2, w3)
+        r1 = -norm - a_d * lam_dev[t]
+        r2 = -c_h - a_h * lam_hyd[t]
+        det = a11 * a22 - a12 * a12
+        if det < 1e-300:
+            return
+        d1 = scale * (a22 * r1 - a12 * r2) / det
+        d2 = scale * (a11 * r2 - a12 * r1) / det
+        lam_dev[t] += d1
+        lam_hyd[t] += d2
+        _apply(out, i0, i1, i2, i3, w0, w1, w2, w3, gd, d1)
+        _apply(out, i0, i1, i2, i3, w0, w1, w2, w3, gh, d2)
+        return
+    denom = _weighted_dot(gd, gd, w0, w1, w2, w3) + a_d
+    if denom < 1e-300:
+        return
+    d1 = scale * (-norm - a_d * lam_dev[t]) / denom
+    lam_dev[t] += d1
+    _apply(out, i0, i1, i2, i3, w0, w1, w2, w3, gd, d1)
+    if in_place:
+        F = _defgrad(x, i0, i1, i2, i3, B, t)
+    cof = _cofactor(F)
+    gh = _node_grads(cof, B, t)
+    c_h = F[0] * cof[0] + F[3] * cof[3] + F[6] * cof[6] - gamma[t]
+    denom = _weighted_dot(gh, gh, w0, w1, w2, w3) + a_h
+    if denom < 1e-300:
+        return
+    d2 = scale * (-c_h - a_h * lam_hyd[t]) / denom
+    lam_hyd[t] += d2
+    _apply(out, i0, i1, i2, i3, w0, w1, w2, w3, gh, d2)
+
+
+@njit(cache=True, parallel=True)
+def gauss_seidel(x, tets, B, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, inv_dt2, mode,
+                 colour_start, iterations):
+    """``iterations`` coloured Gauss–Seidel sweeps over tets stored in colour order: colour c is the range
+    ``colour_start[c]:colour_start[c+1]``.
+    Tets of one colour share no node, so they are projected in parallel without races."""
+    n_colours = colour_start.shape[0] - 1
+    for _ in range(iterations):
+        for c in range(n_colours):
+            lo = colour_start[c]
+            hi = colour_start[c + 1]
+            for j in prange(lo, hi):
+                project_tet(j, x, x, True, tets, B, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd,
+                            inv_dt2, mode, 1.0)
+
+
+@njit(cache=True)
+def jacobi(x, tets, B, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, inv_dt2, mode, tet_scale, iterations):
+    """Jacobi sweeps: every tet sees the same positions; its step (and its multiplier's) is scaled by
+    relaxation / (most tets sharing one of its nodes), which keeps lambda consistent with x."""
+    out = np.zeros_like(x)
+    for _ in range(iterations):
+        out[:] = 0.0
+        for t in range(tets.shape[0]):
+            project_tet(t, x, out, False, tets, B, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, inv_dt2, mode,
+                        tet_scale[t])
+        x += out
