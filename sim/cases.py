@@ -69,6 +69,28 @@ def zhang_cube_shear(n_cells: int = 8, displacement: float = 0.5, constitutive: 
     return Case("cube_shear", model, line, coord, ramp_time)
 
 
+def start_positions(model) -> np.ndarray:
+    """Rest positions with every kinematic node at its final target: the x_0 of Qian eq. 4.45."""
+    x = model.X.copy()
+    idx, target = model.kinematic_targets(np.inf)
+    x[idx] = target
+    return x
+
+
+def variational_error(model, x, x_ref) -> float:
+    """Qian eq. 4.45: (f(x) - f(x*)) / (f(x_0) - f(x*)) on the quasi-static objective
+    f = E(x) - f_ext . x, with x* the reference solution and x_0 = :func:`start_positions`."""
+    from sim import constitutive
+
+    f_ext = model.nodal_external_force()
+
+    def f(y):
+        return constitutive.elastic_energy(model, y) - float(np.sum(f_ext * y))
+
+    f_star = f(x_ref)
+    return float((f(x) - f_star) / (f(start_positions(model)) - f_star))
+
+
 def relative_l2(u, u_ref) -> float:
     """||u - u_ref|| / ||u_ref|| over all nodes (displacements (n, 3))."""
     return float(np.linalg.norm(u - u_ref) / max(np.linalg.norm(u_ref), 1e-300))

@@ -4,15 +4,19 @@ the tangent dP/dF, vectorised over tets (arrays ``F (m, 3, 3)``, per-tet ``mu, l
 Models (``MODEL_CODES``):
 
 - ``stvk`` — St Venant–Kirchhoff: ``E = (F^T F - I)/2``, ``Psi = mu E:E + lam/2 tr(E)^2``, ``P = F S``.
-- ``neo_hookean`` — the compressible form of Zhang eq. 5.35 (ABAQUS C10 = mu/2, D1 = 2/kappa):
-  ``Psi = mu/2 (I1 - 3) - mu log J + lam/2 (log J)^2``, ``P = mu (F - F^-T) + lam log J F^-T``
-  (Qian Table 4.1 without its stray mu, DESIGN.md). Undefined for J <= 0.
+- ``neo_hookean`` — Zhang eq. 5.35 (ABAQUS C10 = mu/2, D1 = 2/kappa), isochoric/volumetric split:
+  ``Psi = mu/2 (I1bar - 3) + kappa/2 (J - 1)^2``, ``I1bar = J^(-2/3) I1``, ``kappa = lam + 2 mu / 3``;
+  ``P = mu J^(-2/3) (F - I1/3 F^-T) + kappa (J - 1) cof F`` (Zhang 5.36 pushed forward). Undefined for
+  J <= 0.
 - ``stable_neo_hookean`` — Macklin & Müller (2021), the form XPBD uses:
   ``Psi = mu/2 (I_C - 3) + lam/2 (J - gamma)^2 - lam/2 (1 - gamma)^2`` with ``gamma = 1 + mu/lam`` so
   the rest state is stress free (the last constant makes Psi(I) = 0); ``P = mu F + lam (J - gamma)
   cof F``. Defined and smooth for inverted F.
-- ``anisotropic_neo_hookean`` — ``neo_hookean`` plus a fibre term (Zhang eq. 5.37, DESIGN.md's fix of
+- ``anisotropic_neo_hookean`` — ``neo_hookean`` plus a fibre term (Zhang eq. 5.37) (Zhang eq. 5.37, DESIGN.md's fix of
   5.38): ``Psi_f = eta/2 (I4bar - 1)^2``, ``I4bar = J^(-2/3) a.C a``; default ``eta = 2 mu``.
+
+With ``volumetric=False`` the split models return only their isochoric part (the volumetric term is
+then evaluated on nodal volumes: average nodal pressure, ``sim.anp``).
 
 The tangent is computed by complex-step differentiation of P (Squire & Trapp 1998): exact to
 rounding, for every model, with no hand-derived fourth-order tensors to get wrong.
@@ -36,7 +40,15 @@ def cofactor(F):
     return np.stack([np.cross(f1, f2), np.cross(f2, f0), np.cross(f0, f1)], axis=2)
 
 
-def energy_density(name: str, F, mu, lam, eta=None, a0=None):
+SPLIT_MODELS = ("neo_hookean", "anisotropic_neo_hookean")
+
+
+def bulk_modulus(mu, lam):
+    """kappa = lam + 2 mu / 3 [Pa]."""
+    return lam + 2.0 * mu / 3.0
+
+
+def energy_density(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = True):
     """Psi per tet [J/m^3]."""
     C = np.einsum("mki,mkj->mij", F, F)
     I1 = np.einsum("mii->m", C)
@@ -47,17 +59,20 @@ def energy_density(name: str, F, mu, lam, eta=None, a0=None):
     if name == "stable_neo_hookean":
         gamma = 1.0 + mu / lam
         return 0.5 * mu * (I1 - 3.0) + 0.5 * lam * (J - gamma) ** 2 - 0.5 * lam * (1.0 - gamma) ** 2
-    if name in ("neo_hookean", "anisotropic_neo_hookean"):
-        logJ = np.log(J)
-        psi = 0.5 * mu * (I1 - 3.0) - mu * logJ + 0.5 * lam * logJ**2
+    if name in SPLIT_MODELS:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            Jm23 = J ** (-2.0 / 3.0)
+        psi = 0.5 * mu * (Jm23 * I1 - 3.0)
+        if volumetric:
+            psi = psi + 0.5 * bulk_modulus(mu, lam) * (J - 1.0) ** 2
         if name == "anisotropic_neo_hookean":
             I4 = np.einsum("mi,mij,mj->m", a0, C, a0)
-            psi = psi + 0.5 * eta * (J ** (-2.0 / 3.0) * I4 - 1.0) ** 2
+            psi = psi + 0.5 * eta * (Jm23 * I4 - 1.0) ** 2
         return psi
     raise KeyError(f"unknown constitutive model {name!r}; expected one of {', '.join(MODEL_CODES)}")
 
 
-def first_piola(name: str, F, mu, lam, eta=None, a0=None):
+def first_piola(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = True):
     """P = dPsi/dF per tet (m, 3, 3) [Pa]. Works on complex F (for the complex-step tangent)."""
     m = (slice(None), None, None)
     if name == "stvk":
@@ -70,13 +85,16 @@ def first_piola(name: str, F, mu, lam, eta=None, a0=None):
     if name == "stable_neo_hookean":
         gamma = 1.0 + mu / lam
         return mu[m] * F + (lam * (J - gamma))[m] * cof
-    if name in ("neo_hookean", "anisotropic_neo_hookean"):
+    if name in SPLIT_MODELS:
         FinvT = cof / J[m]
-        P = mu[m] * (F - FinvT) + (lam * np.log(J))[m] * FinvT
+        Jm23 = J ** (-2.0 / 3.0)
+        I1 = np.einsum("mij,mij->m", F, F)
+        P = (mu * Jm23)[m] * (F - (I1 / 3.0)[m] * FinvT)
+        if volumetric:
+            P = P + (bulk_modulus(mu, lam) * (J - 1.0))[m] * cof
         if name == "anisotropic_neo_hookean":
             C = np.einsum("mki,mkj->mij", F, F)
             I4 = np.einsum("mi,mij,mj->m", a0, C, a0)
-            Jm23 = J ** (-2.0 / 3.0)
             # dI4bar/dF = J^(-2/3) (2 F a a^T - 2/3 I4 F^-T)
             dI4bar = Jm23[m] * (2.0 * np.einsum("mij,mj,mk->mik", F, a0, a0) - (2.0 / 3.0) * I4[m] * FinvT)
             P = P + (eta * (Jm23 * I4 - 1.0))[m] * dI4bar
@@ -84,7 +102,7 @@ def first_piola(name: str, F, mu, lam, eta=None, a0=None):
     raise KeyError(f"unknown constitutive model {name!r}; expected one of {', '.join(MODEL_CODES)}")
 
 
-def tangent(name: str, F, mu, lam, eta=None, a0=None, h: float = 1e-30):
+def tangent(name: str, F, mu, lam, eta=None, a0=None, h: float = 1e-30, volumetric: bool = True):
     """dP/dF as (m, 9, 9) (row = P_ij, column = F_kl, row-major), by complex step."""
     m = F.shape[0]
     out = np.empty((m, 9, 9))
@@ -92,7 +110,7 @@ def tangent(name: str, F, mu, lam, eta=None, a0=None, h: float = 1e-30):
     for col in range(9):
         step = np.zeros((3, 3), np.complex128)
         step.flat[col] = 1j * h
-        out[:, :, col] = first_piola(name, Fc + step, mu, lam, eta, a0).reshape(m, 9).imag / h
+        out[:, :, col] = first_piola(name, Fc + step, mu, lam, eta, a0, volumetric).reshape(m, 9).imag / h
     return out
 
 
@@ -118,22 +136,38 @@ def deformation_gradients(x, tets, Dm_inv):
     return Ds @ Dm_inv
 
 
+def uses_anp(model) -> bool:
+    """True when the model's volumetric energy is evaluated on nodal volumes (``sim.anp``)."""
+    return getattr(model, "pressure", "element") == "anp"
+
+
 def elastic_energy(model, x) -> float:
     name, mu, lam, eta, a0 = model_params(model)
     F = deformation_gradients(x, model.tets, model.Dm_inv)
-    return float(np.sum(model.volume * energy_density(name, F, mu, lam, eta, a0)))
+    anp = uses_anp(model)
+    e = float(np.sum(model.volume * energy_density(name, F, mu, lam, eta, a0, volumetric=not anp)))
+    if anp:
+        from sim import anp as anp_module
+
+        e += anp_module.energy(model, x)
+    return e
 
 
 def elastic_gradient(model, x) -> np.ndarray:
     """dE/dx (n, 3): node k = 1..3 of a tet gets V P Dm^-T column k, node 0 minus their sum."""
     name, mu, lam, eta, a0 = model_params(model)
     F = deformation_gradients(x, model.tets, model.Dm_inv)
-    P = first_piola(name, F, mu, lam, eta, a0)
+    anp = uses_anp(model)
+    P = first_piola(name, F, mu, lam, eta, a0, volumetric=not anp)
     G = model.volume[:, None, None] * P @ np.swapaxes(model.Dm_inv, 1, 2)  # (m, 3, 3): columns = nodes 1..3
     g = np.zeros_like(x)
     for k in range(3):
         np.add.at(g, model.tets[:, k + 1], G[:, :, k])
     np.add.at(g, model.tets[:, 0], -G.sum(axis=2))
+    if anp:
+        from sim import anp as anp_module
+
+        g += anp_module.gradient(model, x)
     return g
 
 
@@ -154,10 +188,16 @@ def dF_dx(Dm_inv):
 
 
 def element_hessians(model, x, project: bool = True) -> np.ndarray:
-    """(m, 12, 12) Hessians V B^T (dP/dF) B, optionally PSD-projected per element."""
+    """(m, 12, 12) Hessians V B^T (dP/dF) B, optionally PSD-projected per element. With average nodal
+    pressure this includes the element-local ANP term; the nodal coupling term is ``anp.coupling_term``."""
     name, mu, lam, eta, a0 = model_params(model)
     F = deformation_gradients(x, model.tets, model.Dm_inv)
     B = dF_dx(model.Dm_inv)
-    T = tangent(name, F, mu, lam, eta, a0)
+    anp = uses_anp(model)
+    T = tangent(name, F, mu, lam, eta, a0, volumetric=not anp)
     H = model.volume[:, None, None] * np.matmul(np.matmul(B.transpose(0, 2, 1), T), B)
+    if anp:
+        from sim import anp as anp_module
+
+        H = H + anp_module.element_term(model, x)
     return project_psd(H) if project else H

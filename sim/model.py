@@ -70,6 +70,7 @@ class Model:
     fixed : (n,) bool, nodes held at their rest position.
     prescribed : displacement ramps applied to node sets.
     gravity : (3,) [m/s^2].
+    pressure : "element" (standard linear tets) or "anp" (average nodal pressure against locking).
     external_force : (n, 3) constant nodal forces [N] (surface tractions integrated on faces).
     """
 
@@ -91,6 +92,7 @@ class Model:
     gravity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     external_force: np.ndarray | None = None
     probes: list = field(default_factory=list)
+    pressure: str = "element"  # "anp": volumetric energy on nodal volumes (sim.anp), split models only
 
     @classmethod
     def from_mesh(

@@ -17,7 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
-from sim import constitutive
+from sim import anp, constitutive
 from sim.integrators import SimulationDiverged
 from sim.model import Model, State
 
@@ -58,6 +58,8 @@ class ReferenceIntegrator:
         H = constitutive.element_hessians(self.model, x, project=project)
         n = 3 * self.model.n_nodes
         K = sp.coo_matrix((H.ravel(), (self.rows, self.cols)), shape=(n, n)).tocsr()
+        if constitutive.uses_anp(self.model):
+            K = K + anp.coupling_term(self.model, x)
         if self.mode == "dynamic":
             K = K + sp.diags(self.mass_dof / (h * h))
         return K
