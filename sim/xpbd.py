@@ -60,9 +60,23 @@ class XPBD:
         self.alpha_hyd = np.where(has_lam, 1.0 / np.where(has_lam, lam, 1.0) / volume, 1e30)
         self.gamma = np.where(has_lam, 1.0 + mu / np.where(has_lam, lam, 1.0), 1.0)
         self.w = m.inverse_mass()
+        self.kin_idx, _ = m.kinematic_targets(0.0)
+        self.kin_base = m.X[self.kin_idx]
+        row_of = {int(node): row for row, node in enumerate(self.kin_idx)}
+        # the last prescription of a node wins, as in Model.kinematic_targets
+        self.prescribed_rows = [(np.array([row_of[int(i)] for i in p.nodes], dtype=np.int64), p) for p in m.prescribed]
         counts = np.bincount(self.tets.ravel(), minlength=m.n_nodes).astype(np.float64)
         self.tet_scale = self.relaxation / counts[self.tets].max(axis=1)
         self.f_ext_acc = m.nodal_external_force() * np.where(self.w > 0, self.w, 0.0)[:, None]
+
+    def _kinematic_targets(self, t):
+        """Targets of the kinematic nodes ``self.kin_idx`` at time ``t`` (rest + ramped displacements)."""
+        if not self.model.prescribed:
+            return self.kin_base
+        target = self.kin_base.copy()
+        for rows, p in self.prescribed_rows:
+            target[rows] = self.kin_base[rows] + p.fraction(t) * np.asarray(p.displacement)
+        return target
 
     def _sweeps(self, x, lam_dev, lam_hyd, inv_dt2, iterations):
         args = (x, self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd, self.gamma, lam_dev, lam_hyd,
@@ -84,8 +98,7 @@ class XPBD:
             t_next = t + h
             x_prev = x.copy()
             x += h * v + h * h * self.f_ext_acc
-            idx, target = m.kinematic_targets(t_next)
-            x[idx] = target
+            x[self.kin_idx] = self._kinematic_targets(t_next)
             lam_dev[:] = 0.0
             lam_hyd[:] = 0.0
             # with probes, contact is resolved after every iteration; else all iterations run in one call
@@ -98,6 +111,6 @@ class XPBD:
             if self.damping > 0.0:
                 v *= np.exp(-self.damping * h)
             t = t_next
-            if not np.isfinite(x).all():
-                raise SimulationDiverged(f"xpbd: non-finite positions at t = {t:.6g} s")
+        if not np.isfinite(x).all():
+            raise SimulationDiverged(f"xpbd: non-finite positions at t = {t:.6g} s")
         return State(x=x, v=v, t=t, private=state.private)

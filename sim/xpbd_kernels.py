@@ -16,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+PARALLEL_MIN_TETS = 64  # colours smaller than this are projected serially
+
 
 @njit(cache=True, inline="always")
 def _defgrad(x, i0, i1, i2, i3, B, t):
@@ -154,9 +156,14 @@ def gauss_seidel(x, tets, B, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, i
         for c in range(n_colours):
             lo = colour_start[c]
             hi = colour_start[c + 1]
-            for j in prange(lo, hi):
-                project_tet(j, x, x, True, tets, B, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd,
-                            inv_dt2, mode, 1.0)
+            if hi - lo < PARALLEL_MIN_TETS:  # a parallel launch costs more than a small colour
+                for j in range(lo, hi):
+                    project_tet(j, x, x, True, tets, B, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd,
+                                inv_dt2, mode, 1.0)
+            else:
+                for j in prange(lo, hi):
+                    project_tet(j, x, x, True, tets, B, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd,
+                                inv_dt2, mode, 1.0)
 
 
 @njit(cache=True)
