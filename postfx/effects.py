@@ -60,42 +60,69 @@ def coc_radius_px(depth: np.ndarray, p: DepthOfField, fov_deg: float, width: int
 
 
 @njit(cache=True, parallel=True)
-def _gather_disc(img, reach2, weight, rmax):
+def _gather_disc(src, dj, di, d2, R):
     """Scatter-as-gather disc blur: pixel q spreads its value uniformly over its own CoC disc
     (``|q - p|^2 <= reach2[q] = r_q^2 + 1/4``, weight ``1 / (pi max(r_q, 1/2)^2)``), so an in-focus
-    pixel (CoC ~ 0) never spreads onto its neighbours."""
-    h, w, nc = img.shape
-    out = np.empty_like(img)
-    R = int(np.ceil(rmax))
+    pixel (CoC ~ 0) never spreads onto its neighbours.
+
+    ``src`` (H, W, 5) packs (r w, g w, b w, w, reach2) per pixel so one tap reads one cache line;
+    ``(dj, di, d2)`` lists the offsets inside the largest disc, row by row."""
+    h, w, _ = src.shape
+    out = np.empty((h, w, 3), np.float32)
+    n = dj.shape[0]
     for j in prange(h):
         for i in range(w):
-            acc0 = 0.0
-            acc1 = 0.0
-            acc2 = 0.0
-            wsum = 0.0
-            for jj in range(max(j - R, 0), min(j + R + 1, h)):
-                dj2 = (jj - j) * (jj - j)
-                for ii in range(max(i - R, 0), min(i + R + 1, w)):
-                    if dj2 + (ii - i) * (ii - i) > reach2[jj, ii]:
+            a0 = np.float32(0.0)
+            a1 = np.float32(0.0)
+            a2 = np.float32(0.0)
+            ws = np.float32(0.0)
+            if R <= j < h - R and R <= i < w - R:  # interior: no bounds tests, branch-free taps
+                for k in range(n):
+                    jj = j + dj[k]
+                    ii = i + di[k]
+                    m = np.float32(1.0) if d2[k] <= src[jj, ii, 4] else np.float32(0.0)
+                    a0 += m * src[jj, ii, 0]
+                    a1 += m * src[jj, ii, 1]
+                    a2 += m * src[jj, ii, 2]
+                    ws += m * src[jj, ii, 3]
+            else:
+                for k in range(n):
+                    jj = j + dj[k]
+                    ii = i + di[k]
+                    if jj < 0 or jj >= h or ii < 0 or ii >= w or d2[k] > src[jj, ii, 4]:
                         continue
-                    wt = weight[jj, ii]
-                    acc0 += wt * img[jj, ii, 0]
-                    acc1 += wt * img[jj, ii, 1]
-                    acc2 += wt * img[jj, ii, 2]
-                    wsum += wt
-            out[j, i, 0] = acc0 / wsum
-            out[j, i, 1] = acc1 / wsum
-            out[j, i, 2] = acc2 / wsum
+                    a0 += src[jj, ii, 0]
+                    a1 += src[jj, ii, 1]
+                    a2 += src[jj, ii, 2]
+                    ws += src[jj, ii, 3]
+            out[j, i, 0] = a0 / ws
+            out[j, i, 1] = a1 / ws
+            out[j, i, 2] = a2 / ws
     return out
+
+
+def dof_source(img: np.ndarray, coc: np.ndarray) -> np.ndarray:
+    """(H, W, 5) float32: premultiplied colour, weight ``1 / (pi max(r, 1/2)^2)`` and reach ``r^2 + 1/4``."""
+    c = coc.astype(np.float64)
+    weight = 1.0 / (np.pi * np.maximum(c, 0.5) ** 2)
+    src = np.empty(img.shape[:2] + (5,), np.float32)
+    src[..., :3] = img * weight[..., None]
+    src[..., 3] = weight
+    src[..., 4] = c * c + 0.25
+    return src
 
 
 def depth_of_field(img: np.ndarray, depth: np.ndarray, p: DepthOfField, fov_deg: float) -> np.ndarray:
     coc = coc_radius_px(depth, p, fov_deg, img.shape[1])
-    if float(coc.max()) < 0.5:
+    rmax = float(coc.max())
+    if rmax < 0.5:
         return img.copy()
-    reach2 = (coc.astype(np.float64) ** 2 + 0.25).astype(np.float32)
-    weight = (1.0 / (np.pi * np.maximum(coc.astype(np.float64), 0.5) ** 2)).astype(np.float32)
-    return _gather_disc(np.ascontiguousarray(img, dtype=np.float32), reach2, weight, float(coc.max()))
+    R = int(np.ceil(rmax))
+    jj, ii = np.mgrid[-R:R + 1, -R:R + 1]
+    d2 = (jj * jj + ii * ii).ravel()
+    keep = d2 <= rmax * rmax + 0.25
+    return _gather_disc(dof_source(img, coc), jj.ravel()[keep].astype(np.int64), ii.ravel()[keep].astype(np.int64),
+                        d2[keep].astype(np.float32), R)
 
 
 def smoothstep(e0, e1, x):
@@ -127,24 +154,34 @@ def laparoscope_mask(img: np.ndarray, p: LaparoscopeMask) -> np.ndarray:
     return img * mask_weights(img.shape[0], img.shape[1], p)[..., None]  # weights cached per size and params
 
 
-def aces(x: np.ndarray) -> np.ndarray:
-    """ACES filmic fit (Narkowicz 2015): monotonic on x >= 0, maps 0 -> 0 and large x -> 1."""
-    a, b, c, d, e = (np.float32(v) for v in (2.51, 0.03, 2.43, 0.59, 0.14))
-    return np.clip((x * (a * x + b)) / (x * (c * x + d) + e), 0.0, 1.0)
+@njit(cache=True, inline="always")
+def _srgb1(x):
+    x = min(max(x, 0.0), 1.0)
+    return 12.92 * x if x <= 0.0031308 else 1.055 * x ** (1.0 / 2.4) - 0.055
 
 
-def srgb_encode(x: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 sRGB transfer function on [0, 1]."""
-    x = np.clip(x, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, np.float32(1.0 / 2.4)) - 0.055)
+@njit(cache=True, parallel=True)
+def _tonemap_kernel(img, gain, curve, srgb):
+    h, w, nc = img.shape
+    out = np.empty_like(img)
+    for j in prange(h):
+        for i in range(w):
+            for c in range(nc):
+                x = max(np.float64(img[j, i, c]), 0.0) * gain
+                if curve == 0:  # ACES fit (Narkowicz 2015)
+                    y = min(max((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0.0), 1.0)
+                elif curve == 1:
+                    y = x / (1.0 + x)
+                else:
+                    y = min(x, 1.0)
+                out[j, i, c] = _srgb1(y) if srgb else y
+    return out
+
+
+TONE_CURVES = {"aces": 0, "reinhard": 1, "clamp": 2}
 
 
 def tonemap(img: np.ndarray, p: Tonemap) -> np.ndarray:
-    x = np.maximum(img, np.float32(0.0)) * np.float32(2.0**p.exposure)
-    if p.curve == "aces":
-        y = aces(x)
-    elif p.curve == "reinhard":
-        y = x / (1.0 + x)
-    else:
-        y = np.clip(x, 0.0, 1.0)
-    return (srgb_encode(y) if p.srgb else y).astype(np.float32)
+    """Exposure ``2^exposure``, then the ACES fit, Reinhard ``x / (1 + x)`` or a clamp, then sRGB."""
+    return _tonemap_kernel(np.ascontiguousarray(img, dtype=np.float32), float(2.0**p.exposure),
+                           TONE_CURVES[p.curve], bool(p.srgb))

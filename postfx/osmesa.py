@@ -82,26 +82,23 @@ void main() {
   gl_FragData[0] = vec4(texelFetch(img, p, 0).rgb * weight, 1.0);
 }
 """,
-    "depth_of_field": _HEADER + "uniform sampler2D img;\nuniform sampler2D coc;\nuniform int R;\n" + """
+    "depth_of_field": _HEADER + "uniform sampler2D src;\nuniform sampler2D reach;\nuniform int R;\n" + """
 void main() {
-""" + _PIXEL + """  vec3 acc = vec3(0.0);
-  float wsum = 0.0;
+  ivec2 size = textureSize(src, 0);
+  ivec2 p = ivec2(texCoord * vec2(size));
+  vec4 acc = vec4(0.0);
+  float r2max = float(R * R) + 0.25;
   for (int dj = -R; dj <= R; ++dj) {
     int jj = p.y + dj;
     if (jj < 0 || jj >= size.y) continue;
     for (int di = -R; di <= R; ++di) {
       int ii = p.x + di;
-      if (ii < 0 || ii >= size.x) continue;
-      float r = texelFetch(coc, ivec2(ii, jj), 0).r;
       float dist2 = float(di * di + dj * dj);
-      if (dist2 > r * r + 0.25) continue;
-      float area = 3.14159265358979 * max(r, 0.5) * max(r, 0.5);
-      float wt = 1.0 / area;
-      acc += wt * texelFetch(img, ivec2(ii, jj), 0).rgb;
-      wsum += wt;
+      if (ii < 0 || ii >= size.x || dist2 > r2max) continue;
+      if (dist2 <= texelFetch(reach, ivec2(ii, jj), 0).r) acc += texelFetch(src, ivec2(ii, jj), 0);
     }
   }
-  gl_FragData[0] = vec4(acc / wsum, 1.0);
+  gl_FragData[0] = vec4(acc.rgb / acc.a, 1.0);
 }
 """,
 }
@@ -237,5 +234,7 @@ def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params, lens) ->
         coc = effects.coc_radius_px(depth, params, lens.fov_deg, w)
         if float(coc.max()) < 0.5:
             return img.copy()
-        return ctx.run(name, {"img": img, "coc": coc}, {"R": int(math.ceil(float(coc.max())))}, w, h)
+        src = effects.dof_source(img, coc)  # premultiplied colour and weight, reach r^2 + 1/4
+        return ctx.run(name, {"src": src[..., :4], "reach": src[..., 4]}, {"R": int(math.ceil(float(coc.max())))},
+                       w, h)
     raise KeyError(f"unknown post-effect {name!r}")
