@@ -2,7 +2,8 @@
 mapping with sRGB encoding, and the circular scope mask.
 
 Default order (``DEFAULT_ORDER``): depth of field and chromatic aberration act on scene-linear HDR
-light, as the lens does; the tone map then turns light into display values; the mask comes last so
+light, as the lens does; the tone map then turns light into display values, which the colour grade
+shapes (curves are edited on display values, as in a grading tool); the mask comes last so
 its black surround stays black and its soft edge has the same profile at every exposure. Qian's
 profiles put CA with the tone map and the mask last; we keep the mask last and move the lens
 effects before the tone map, where they are physical.
@@ -19,7 +20,7 @@ import numpy as np
 from postfx import effects
 from postfx.params import EFFECTS, EffectParams
 
-DEFAULT_ORDER = ["depth_of_field", "chromatic_aberration", "tonemap", "laparoscope_mask"]
+DEFAULT_ORDER = ["depth_of_field", "chromatic_aberration", "tonemap", "color_grade", "laparoscope_mask"]
 
 # Named camera signatures: (effect, parameters) in order.
 CAMERA_PRESETS: dict[str, list[tuple[str, dict]]] = {
@@ -31,6 +32,8 @@ CAMERA_PRESETS: dict[str, list[tuple[str, dict]]] = {
     "old_scope": [
         ("chromatic_aberration", {"strength_r": 0.008, "strength_b": -0.008}),
         ("tonemap", {"exposure": 0.3, "curve": "reinhard"}),
+        ("color_grade", {"lift": [0.03, 0.02, 0.0], "gain": [1.0, 0.96, 0.88], "contrast": 1.25,
+                         "saturation": 0.8}),
         ("laparoscope_mask", {"radius": 0.9, "softness": 0.08, "vignette": 0.55}),
     ],
 }
@@ -65,6 +68,8 @@ def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params: EffectPa
         return effects.tonemap(img, params)
     if name == "laparoscope_mask":
         return effects.laparoscope_mask(img, params)
+    if name == "color_grade":
+        return effects.color_grade(img, params)
     raise KeyError(f"unknown post-effect {name!r}; expected one of {', '.join(EFFECTS)}")
 
 

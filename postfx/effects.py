@@ -9,7 +9,7 @@ import functools
 import numpy as np
 from numba import njit, prange
 
-from postfx.params import ChromaticAberration, DepthOfField, LaparoscopeMask, Tonemap
+from postfx.params import ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask, Tonemap
 
 
 @njit(cache=True, parallel=True)
@@ -185,3 +185,66 @@ def tonemap(img: np.ndarray, p: Tonemap) -> np.ndarray:
     """Exposure ``2^exposure``, then the ACES fit, Reinhard ``x / (1 + x)`` or a clamp, then sRGB."""
     return _tonemap_kernel(np.ascontiguousarray(img, dtype=np.float32), float(2.0**p.exposure),
                            TONE_CURVES[p.curve], bool(p.srgb))
+
+
+LUT_SIZE = 1024
+LUMA = (0.2126, 0.7152, 0.0722)  # Rec. 709
+
+
+def _monotone_curve(points):
+    from scipy.interpolate import PchipInterpolator
+
+    pts = np.asarray(points, dtype=np.float64)
+    spline = PchipInterpolator(pts[:, 0], pts[:, 1], extrapolate=False)
+    return lambda x: np.where(x <= pts[0, 0], pts[0, 1], np.where(x >= pts[-1, 0], pts[-1, 1], spline(x)))
+
+
+@functools.lru_cache(maxsize=16)
+def _grade_lut(key: str) -> np.ndarray:
+    p = ColorGrade.model_validate_json(key)
+    x = np.linspace(0.0, 1.0, LUT_SIZE)
+    master = _monotone_curve(p.curve)
+    lut = np.empty((LUT_SIZE, 3), np.float32)
+    for c, own in enumerate((p.curve_r, p.curve_g, p.curve_b)):
+        y = np.clip(x + p.lift[c] * (1.0 - x), 0.0, None) ** (1.0 / p.gamma[c]) * p.gain[c]
+        y = np.clip(y, 0.0, 1.0)
+        with np.errstate(divide="ignore"):
+            a, b = y**p.contrast, (1.0 - y) ** p.contrast
+        y = np.where(a + b > 0, a / np.maximum(a + b, 1e-300), 0.0)
+        y = master(y)
+        if own is not None:
+            y = _monotone_curve(own)(y)
+        lut[:, c] = np.clip(y, 0.0, 1.0)
+    lut.setflags(write=False)
+    return lut
+
+
+def grade_lut(p: ColorGrade) -> np.ndarray:
+    """(LUT_SIZE, 3) float32: the per-channel part of the grade sampled on [0, 1]."""
+    return _grade_lut(p.model_dump_json())  # lists make the model unhashable: cache on its JSON
+
+
+@njit(cache=True, parallel=True)
+def _grade_kernel(img, lut, saturation, l0, l1, l2):
+    h, w, _ = img.shape
+    n = lut.shape[0]
+    out = np.empty_like(img)
+    for j in prange(h):
+        for i in range(w):
+            f0 = min(max(np.float64(img[j, i, 0]), 0.0), 1.0) * (n - 1)
+            f1 = min(max(np.float64(img[j, i, 1]), 0.0), 1.0) * (n - 1)
+            f2 = min(max(np.float64(img[j, i, 2]), 0.0), 1.0) * (n - 1)
+            k0, k1, k2 = min(int(f0), n - 2), min(int(f1), n - 2), min(int(f2), n - 2)
+            r = lut[k0, 0] + (f0 - k0) * (lut[k0 + 1, 0] - lut[k0, 0])
+            g = lut[k1, 1] + (f1 - k1) * (lut[k1 + 1, 1] - lut[k1, 1])
+            b = lut[k2, 2] + (f2 - k2) * (lut[k2 + 1, 2] - lut[k2, 2])
+            luma = l0 * r + l1 * g + l2 * b
+            out[j, i, 0] = min(max(luma + saturation * (r - luma), 0.0), 1.0)
+            out[j, i, 1] = min(max(luma + saturation * (g - luma), 0.0), 1.0)
+            out[j, i, 2] = min(max(luma + saturation * (b - luma), 0.0), 1.0)
+    return out
+
+
+def color_grade(img: np.ndarray, p: ColorGrade) -> np.ndarray:
+    """Grade display values in [0, 1]: the per-channel LUT (linear interpolation), then saturation."""
+    return _grade_kernel(np.ascontiguousarray(img, dtype=np.float32), grade_lut(p), float(p.saturation), *LUMA)

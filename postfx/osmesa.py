@@ -82,6 +82,22 @@ void main() {
   gl_FragData[0] = vec4(texelFetch(img, p, 0).rgb * weight, 1.0);
 }
 """,
+    "color_grade": _HEADER + "uniform sampler2D img;\nuniform sampler2D lut;\nuniform float saturation;\n"
+    "uniform vec3 luma;\n" + """
+float lookup(float x, int c) {
+  int n = textureSize(lut, 0).x;
+  float f = clamp(x, 0.0, 1.0) * float(n - 1);
+  int k = min(int(f), n - 2);
+  float a = texelFetch(lut, ivec2(k, 0), 0)[c];
+  return a + (f - float(k)) * (texelFetch(lut, ivec2(k + 1, 0), 0)[c] - a);
+}
+void main() {
+""" + _PIXEL + """  vec3 x = texelFetch(img, p, 0).rgb;
+  vec3 y = vec3(lookup(x.r, 0), lookup(x.g, 1), lookup(x.b, 2));
+  float l = dot(luma, y);
+  gl_FragData[0] = vec4(clamp(vec3(l) + saturation * (y - vec3(l)), 0.0, 1.0), 1.0);
+}
+""",
     "depth_of_field": _HEADER + "uniform sampler2D src;\nuniform sampler2D reach;\nuniform int R;\n" + """
 void main() {
   ivec2 size = textureSize(src, 0);
@@ -230,6 +246,9 @@ def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params, lens) ->
         centre = (w * (0.5 + params.offset[0]), h * (0.5 + params.offset[1]))
         return ctx.run(name, {"img": img}, {"centre": centre, "radius": params.radius, "softness": params.softness,
                                             "vignette": params.vignette}, w, h)
+    if name == "color_grade":
+        lut = effects.grade_lut(params)[None, :, :]  # a LUT_SIZE x 1 float texture
+        return ctx.run(name, {"img": img, "lut": lut}, {"saturation": params.saturation, "luma": effects.LUMA}, w, h)
     if name == "depth_of_field":
         coc = effects.coc_radius_px(depth, params, lens.fov_deg, w)
         if float(coc.max()) < 0.5:

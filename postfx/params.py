@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 
 class EffectParams(BaseModel):
@@ -59,9 +59,48 @@ class Tonemap(EffectParams):
     srgb: bool = True
 
 
+Unit = Annotated[float, Field(ge=0.0, le=1.0)]
+RGB = Annotated[list[Annotated[float, Field(ge=-1.0, le=4.0)]], Field(min_length=3, max_length=3)]
+
+
+class ColorGrade(EffectParams):
+    """Colour grading on display values (Qian §6.3.3: filmic adjustment and curve editing), in order:
+    lift/gamma/gain per channel ``y = gain (x + lift (1 - x))^(1/gamma)``, a filmic S-curve
+    ``y = x^c / (x^c + (1 - x)^c)`` (``contrast`` c; 1 is the identity; it fixes 0, 1/2 and 1), the
+    editable master tone curve, the per-channel curves, then saturation about Rec. 709 luma.
+
+    Curves are control points ``[[x, y], ...]`` with x strictly increasing in [0, 1], interpolated by a
+    monotone cubic (Fritsch–Carlson / PCHIP): the curve passes through every point and never
+    overshoots; beyond the first and last point it is flat.
+    """
+
+    lift: RGB = [0.0, 0.0, 0.0]
+    gamma: Annotated[list[Annotated[float, Field(gt=0.05, le=10.0)]], Field(min_length=3, max_length=3)] = [1.0, 1.0, 1.0]
+    gain: RGB = [1.0, 1.0, 1.0]
+    contrast: Annotated[float, Field(ge=0.1, le=5.0, description="filmic S-curve exponent")] = 1.0
+    curve: list[Annotated[list[Unit], Field(min_length=2, max_length=2)]] = [[0.0, 0.0], [1.0, 1.0]]
+    curve_r: list[Annotated[list[Unit], Field(min_length=2, max_length=2)]] | None = None
+    curve_g: list[Annotated[list[Unit], Field(min_length=2, max_length=2)]] | None = None
+    curve_b: list[Annotated[list[Unit], Field(min_length=2, max_length=2)]] | None = None
+    saturation: Annotated[float, Field(ge=0.0, le=4.0)] = 1.0
+
+    @field_validator("curve", "curve_r", "curve_g", "curve_b")
+    @classmethod
+    def _increasing(cls, points):
+        if points is None:
+            return points
+        if len(points) < 2:
+            raise ValueError(f"a curve needs at least 2 points [x, y], found {len(points)}")
+        xs = [p[0] for p in points]
+        if any(b <= a for a, b in zip(xs, xs[1:])):
+            raise ValueError(f"curve x values must be strictly increasing, found {xs}")
+        return points
+
+
 EFFECTS: dict[str, type[EffectParams]] = {
     "depth_of_field": DepthOfField,
     "chromatic_aberration": ChromaticAberration,
     "tonemap": Tonemap,
+    "color_grade": ColorGrade,
     "laparoscope_mask": LaparoscopeMask,
 }
