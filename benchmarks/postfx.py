@@ -22,12 +22,13 @@ import numpy as np  # noqa: E402
 
 import postfx  # noqa: E402
 from postfx import osmesa  # noqa: E402
-from postfx.params import ChromaticAberration, DepthOfField, LaparoscopeMask, Tonemap  # noqa: E402
+from postfx.params import ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask, Tonemap  # noqa: E402
 
 W, H = 640, 480
 CHAIN = [("depth_of_field", DepthOfField(focus_distance=0.1, aperture=0.002, max_radius_px=8.0)),
          ("chromatic_aberration", ChromaticAberration()),
          ("tonemap", Tonemap()),
+         ("color_grade", ColorGrade(contrast=1.2, curve=[[0.0, 0.0], [0.5, 0.45], [1.0, 1.0]], saturation=0.9)),
          ("laparoscope_mask", LaparoscopeMask())]
 
 

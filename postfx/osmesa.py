@@ -98,20 +98,19 @@ void main() {
   gl_FragData[0] = vec4(clamp(vec3(l) + saturation * (y - vec3(l)), 0.0, 1.0), 1.0);
 }
 """,
-    "depth_of_field": _HEADER + "uniform sampler2D src;\nuniform sampler2D reach;\nuniform int R;\n" + """
+    "depth_of_field": _HEADER + "uniform sampler2D src;\nuniform int R;\nuniform float r2max;\n" + """
+// src = (r w, g w, b w, reach^2) with w = 1 / (pi max(reach^2 - 1/4, 1/4)): one fetch per tap. It is
+// padded by R texels of reach -1 on every side (never inside a disc), so taps need no bounds test.
 void main() {
-  ivec2 size = textureSize(src, 0);
-  ivec2 p = ivec2(texCoord * vec2(size));
+  ivec2 p = ivec2(texCoord * vec2(textureSize(src, 0) - 2 * R)) + ivec2(R);
   vec4 acc = vec4(0.0);
-  float r2max = float(R * R) + 0.25;
   for (int dj = -R; dj <= R; ++dj) {
-    int jj = p.y + dj;
-    if (jj < 0 || jj >= size.y) continue;
-    for (int di = -R; di <= R; ++di) {
-      int ii = p.x + di;
-      float dist2 = float(di * di + dj * dj);
-      if (ii < 0 || ii >= size.x || dist2 > r2max) continue;
-      if (dist2 <= texelFetch(reach, ivec2(ii, jj), 0).r) acc += texelFetch(src, ivec2(ii, jj), 0);
+    int span = int(floor(sqrt(max(r2max - float(dj * dj), 0.0))));
+    for (int di = -span; di <= span; ++di) {
+      vec4 s = texelFetch(src, p + ivec2(di, dj), 0);
+      if (float(di * di + dj * dj) <= s.a) {
+        acc += vec4(s.rgb, 1.0 / (3.14159265358979 * max(s.a - 0.25, 0.25)));
+      }
     }
   }
   gl_FragData[0] = vec4(acc.rgb / acc.a, 1.0);
@@ -253,7 +252,11 @@ def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params, lens) ->
         coc = effects.coc_radius_px(depth, params, lens.fov_deg, w)
         if float(coc.max()) < 0.5:
             return img.copy()
-        src = effects.dof_source(img, coc)  # premultiplied colour and weight, reach r^2 + 1/4
-        return ctx.run(name, {"src": src[..., :4], "reach": src[..., 4]}, {"R": int(math.ceil(float(coc.max())))},
-                       w, h)
+        src = effects.dof_source(img, coc)  # premultiplied colour, weight, reach r^2 + 1/4
+        rmax = float(coc.max())
+        R = int(math.ceil(rmax))
+        padded = np.zeros((h + 2 * R, w + 2 * R, 4), np.float32)
+        padded[..., 3] = -1.0
+        padded[R:R + h, R:R + w] = src[..., [0, 1, 2, 4]]
+        return ctx.run(name, {"src": padded}, {"R": R, "r2max": rmax * rmax + 0.25}, w, h)
     raise KeyError(f"unknown post-effect {name!r}")
