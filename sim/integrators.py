@@ -43,5 +43,11 @@ def make_integrator(name: str, model: Model, settings: dict | None = None) -> In
     if name not in REGISTRY:
         raise KeyError(f"unknown integrator {name!r}; expected one of {sorted(REGISTRY)}")
     module_name, class_name = REGISTRY[name].split(":")
-    cls = getattr(importlib.import_module(module_name), class_name)
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as e:
+        if e.name != module_name:
+            raise
+        raise NotImplementedError(f"the {name!r} integrator is not implemented yet") from None
+    cls = getattr(module, class_name)
     return cls(model, dict(settings or {}))

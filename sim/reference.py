@@ -33,6 +33,9 @@ class ReferenceIntegrator:
         self.tol = float(settings.get("tol", 1e-8))
         self.max_newton = int(settings.get("max_newton", 50))
         self.load_steps = int(settings.get("load_steps", 1))
+        if settings.get("anp", False):
+            anp.check_model(model)
+            model.pressure = "anp"
         m = model
         idx = np.repeat(m.tets, 3, axis=1) * 3 + np.tile(np.arange(3), 4)[None, :]  # (m, 12) dof ids
         self.rows = np.repeat(idx, 12, axis=1).ravel()

@@ -41,7 +41,9 @@ class XPBD:
         self.damping = float(settings.get("damping", 0.0))
         if self.solver not in ("gauss_seidel", "jacobi"):
             raise ValueError(f"xpbd solver must be 'gauss_seidel' or 'jacobi', found {self.solver!r}")
-        coupling = settings.get("coupling", "coupled")
+        coupling = settings.get("coupling", "coupled" if settings.get("coupled", True) else "sequential")
+        if settings.get("strain_min") is not None or settings.get("strain_max") is not None:
+            raise NotImplementedError("xpbd strain-limit constraints (strain_min, strain_max) are not implemented yet")
         if coupling not in ("coupled", "sequential"):
             raise ValueError(f"xpbd coupling must be 'coupled' or 'sequential', found {coupling!r}")
         self.mode = 1 if coupling == "coupled" else 0

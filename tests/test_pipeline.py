@@ -101,3 +101,29 @@ def test_cli_render_end_to_end(scene_dict, write_scene, tmp_path, capsys):
     path = write_scene(scene_dict)
     assert main(["render", str(path), "-o", str(tmp_path / "cli"), "--quiet"]) == 0
     assert (tmp_path / "cli" / "frame_0001.png").exists()
+
+
+@pytest.mark.parametrize("integrator, table, message", [
+    ("cnn", {}, None),
+    ("explicit", {"rayleigh_beta": 0.001}, None),
+    ("ebm", {}, "'ebm' integrator is not implemented yet"),
+    ("cnn", {"force_model": "energy_propagation"}, "energy-propagation force model .* not implemented yet"),
+    ("xpbd", {"strain_max": 1.1}, "strain-limit constraints .* not implemented yet"),
+])
+def test_integrator_choice_renders_or_exits_2_with_the_reason(scene_dict, write_scene, tmp_path, capsys,
+                                                              integrator, table, message):
+    scene_dict["simulation"] = {"integrator": integrator, "dt": 0.002, "substeps": 2,
+                                "gravity": [0.0, 0.0, -9.81], integrator: table}
+    scene_dict["output"]["frames"] = 2
+    path = write_scene(scene_dict)
+    code = main(["render", str(path), "-o", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err
+    if message is None:
+        assert code == 0 and (tmp_path / "out" / "frame_0002.png").exists()
+        manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+        assert "simulate" in json.dumps(manifest)
+    else:
+        import re
+
+        assert code == 2 and re.search(message, err) and "Traceback" not in err
+        assert str(path) in err

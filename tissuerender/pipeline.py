@@ -91,7 +91,10 @@ def build_world(scene: Scene, plan: Plan, recorder: StageRecorder) -> World:
         settings.update(substeps=sim.substeps, iterations=sim.iterations)
         for body in bodies:
             body.model.probes = list(probes)
-            world.integrators.append(make_integrator(sim.integrator, body.model, settings))
+            try:
+                world.integrators.append(make_integrator(sim.integrator, body.model, settings))
+            except (NotImplementedError, ValueError) as e:
+                raise UserError(f"{scene.path}: [simulation.{sim.integrator}] for object {body.spec.name!r}: {e}") from None
             world.states.append(State.at_rest(body.model))
     return world
 

@@ -123,7 +123,7 @@ class EBMSettings(Strict):
 
 class CNNSettings(Strict):
     K: Annotated[float, Field(gt=0.0, le=1e4)] = 4.0
-    saturation: Literal["output", "state"] = "output"
+    saturation: Literal["output", "state"] = "state"
     force_model: Literal["constitutive", "linear_fem", "energy_propagation"] = "constitutive"
     rayleigh_alpha: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
     rayleigh_beta: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
@@ -135,7 +135,9 @@ class ChainMailSettings(Strict):
 
 
 class ExplicitSettings(Strict):
-    damping: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
+    force_model: Literal["constitutive", "linear_fem"] = "constitutive"
+    rayleigh_alpha: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
+    rayleigh_beta: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
 
 
 class Simulation(Strict):

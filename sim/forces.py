@@ -1,0 +1,66 @@
+"""Nodal accelerations for the explicit-type integrators (``explicit``, ``cnn``):
+``a = M^-1 (f_int(x) - D v + f_ext)`` on free nodes, zero on kinematic ones.
+
+Internal forces come from the shared constitutive library (``force_model = "constitutive"``, the
+model's own nonlinear material) or from the linear FEM stiffness ``f_int = -K (x - X)``
+(``"linear_fem"``). Damping is Rayleigh, ``D = alpha M + beta K`` (settings ``rayleigh_alpha`` [1/s]
+and ``rayleigh_beta`` [s]).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from sim import constitutive, linear_fem
+from sim.integrators import SimulationDiverged
+
+FORCE_MODELS = ("constitutive", "linear_fem")
+NOT_YET = {"energy_propagation": "the CNN energy-propagation force model (Zhang 4.4-4.30)"}
+
+
+class Accelerations:
+    def __init__(self, model, settings: dict, who: str):
+        self.model = model
+        self.who = who
+        self.force_model = settings.get("force_model", "constitutive")
+        if self.force_model in NOT_YET:
+            raise NotImplementedError(f"{who}: {NOT_YET[self.force_model]} is not implemented yet; "
+                                      f"use force_model = \"constitutive\" or \"linear_fem\"")
+        if self.force_model not in FORCE_MODELS:
+            raise ValueError(f"{who}: force_model must be one of {', '.join(FORCE_MODELS)}, "
+                             f"found {self.force_model!r}")
+        self.alpha = float(settings.get("rayleigh_alpha", 0.0))
+        self.beta = float(settings.get("rayleigh_beta", 0.0))
+        need_K = self.force_model == "linear_fem" or self.beta != 0.0
+        self.K = linear_fem.stiffness_matrix(model) if need_K else None
+        self.inv_mass = np.where(model.mass > 0, 1.0 / np.maximum(model.mass, 1e-300), 0.0)
+        self.kinematic, _ = model.kinematic_targets(0.0)
+        self.f_ext = model.nodal_external_force()
+        extent = np.ptp(model.X, axis=0)
+        self.blow_up = 100.0 * float(np.linalg.norm(extent)) + 1.0  # displacement that means divergence [m]
+
+    def __call__(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        if self.force_model == "constitutive":
+            f = constitutive.elastic_forces(self.model, x)
+        else:
+            f = -(self.K @ (x - self.model.X).ravel()).reshape(x.shape)
+        f = f + self.f_ext - self.alpha * self.model.mass[:, None] * v
+        if self.beta != 0.0:
+            f = f - self.beta * (self.K @ v.ravel()).reshape(v.shape)
+        a = f * self.inv_mass[:, None]
+        a[self.kinematic] = 0.0
+        return a
+
+    def check(self, x: np.ndarray, t: float) -> None:
+        """Raise SimulationDiverged for non-finite or runaway positions (never return NaN frames)."""
+        if not np.isfinite(x).all():
+            raise SimulationDiverged(f"{self.who}: non-finite positions at t = {t:.6g} s; reduce dt")
+        worst = float(np.abs(x - self.model.X).max())
+        if worst > self.blow_up:
+            raise SimulationDiverged(f"{self.who}: displacement {worst:.3g} m at t = {t:.6g} s exceeds 100x the "
+                                     f"body's size: the integration diverged; reduce dt")
+
+    def set_kinematic(self, x: np.ndarray, v: np.ndarray, t: float, h: float) -> None:
+        """Place fixed and prescribed nodes at their targets at ``t`` with the matching velocity."""
+        idx, target = self.model.kinematic_targets(t)
+        v[idx] = (target - x[idx]) / h
+        x[idx] = target
