@@ -118,7 +118,7 @@ class ReferenceSettings(Strict):
 
 
 class EBMSettings(Strict):
-    damping: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
+    update: Literal["average", "sum"] = "average"
 
 
 class CNNSettings(Strict):
