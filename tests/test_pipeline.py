@@ -128,3 +128,18 @@ def test_integrator_choice_renders_or_exits_2_with_the_reason(scene_dict, write_
 
         assert code == 2 and re.search(message, err) and "Traceback" not in err
         assert str(path) in err
+
+
+def test_paint_strokes_stiffen_the_model_and_bad_ones_exit_2(scene_dict, write_scene, tmp_path, capsys):
+    from tissuerender.bodies import build_body
+
+    scene_dict["objects"][0]["paint"] = [{"centre": [0.0, 0.0, 0.0], "radius": 0.05, "amount": 3.0}]
+    scene = load_scene(write_scene(scene_dict))
+    body = build_body(scene.objects[0], 0, scene)
+    E = body.model.E
+    assert E.max() > 2.0 * E.min() and np.isclose(E.min(), np.median(E))  # only near the corner
+    scene_dict["objects"][0]["paint"] = [{"centre": [0.0, 0.0, 0.0], "radius": 0.05, "amount": -0.99}] * 3
+    path = write_scene(scene_dict, "bad.toml")
+    assert main(["render", str(path), "-o", str(tmp_path / "bad"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "objects[0].paint" in err and "non-positive" in err and "Traceback" not in err

@@ -126,6 +126,13 @@ def build_model(obj: ObjectSpec, index: int, mesh: TetMesh, scene: Scene, bounda
         material_params=params, gravity=np.asarray(scene.simulation.gravity, dtype=np.float64),
     )
     key = f"objects[{index}]"
+    if obj.paint:
+        from sim.painting import Stroke, apply_painting
+
+        try:
+            apply_painting(model, [Stroke(tuple(p.centre), p.radius, p.amount) for p in obj.paint])
+        except ValueError as e:
+            raise SceneError(scene.path, f"{key}.paint", f"expected strokes that keep every stiffness positive: {e}") from None
     for j, region in enumerate(obj.fixed):
         nodes = region_nodes(mesh.points, region)
         if nodes.size == 0:

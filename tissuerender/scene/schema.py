@@ -63,6 +63,15 @@ class Traction(Region):
     traction: Vec3
 
 
+class PaintStroke(Strict):
+    """A poly6 stiffness stroke (Qian 4.26-4.28): the stiffness multiplier rises by ``amount`` at
+    ``centre`` and falls smoothly to nothing at ``radius``."""
+
+    centre: Vec3
+    radius: Annotated[float, Field(gt=0.0, le=10.0)]
+    amount: Annotated[float, Field(gt=-1.0, le=1e4)]
+
+
 class MaterialOverride(Strict):
     E: Annotated[float, Field(gt=0.0, le=1e9)] | None = None
     nu: Annotated[float, Field(ge=0.0, lt=0.5)] | None = None
@@ -86,6 +95,7 @@ class ObjectSpec(Strict):
     fixed: list[Region] = []
     prescribed: list[Prescribed] = []
     tractions: list[Traction] = []
+    paint: Annotated[list[PaintStroke], Field(max_length=1000)] = []
 
     @model_validator(mode="after")
     def _geometry_source(self):
@@ -93,7 +103,7 @@ class ObjectSpec(Strict):
             if self.mesh is None:
                 raise ValueError("a static surface needs 'mesh' (a .ply, .obj or .stl file)")
             extra = [k for k in ("shape", "size", "cell_size") if getattr(self, k) is not None]
-            extra += [k for k in ("fixed", "prescribed", "tractions") if getattr(self, k)]
+            extra += [k for k in ("fixed", "prescribed", "tractions", "paint") if getattr(self, k)]
             if extra:
                 raise ValueError(f"a static surface takes no {', '.join(extra)} (only bodies are simulated)")
         elif (self.shape is None) == (self.mesh is None):
