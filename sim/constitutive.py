@@ -12,6 +12,8 @@ Models (``MODEL_CODES``):
   ``Psi = mu/2 (I_C - 3) + lam/2 (J - gamma)^2 - lam/2 (1 - gamma)^2`` with ``gamma = 1 + mu/lam`` so
   the rest state is stress free (the last constant makes Psi(I) = 0); ``P = mu F + lam (J - gamma)
   cof F``. Defined and smooth for inverted F.
+- ``valanis_landel`` — curve-defined energies of the principal stretches (Qian 4.15–4.20,
+  ``sim.valanis_landel``; the curves come as ``vl=``, from ``model.material_params``).
 - ``anisotropic_neo_hookean`` — ``neo_hookean`` plus a fibre term (Zhang eq. 5.37) (Zhang eq. 5.37, DESIGN.md's fix of
   5.38): ``Psi_f = eta/2 (I4bar - 1)^2``, ``I4bar = J^(-2/3) a.C a``; default ``eta = 2 mu``.
 
@@ -25,7 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
-MODEL_CODES = {"stvk": 0, "neo_hookean": 1, "stable_neo_hookean": 2, "anisotropic_neo_hookean": 3}
+MODEL_CODES = {"stvk": 0, "neo_hookean": 1, "stable_neo_hookean": 2, "anisotropic_neo_hookean": 3,
+               "valanis_landel": 4}
 
 
 def _det(F):
@@ -48,8 +51,10 @@ def bulk_modulus(mu, lam):
     return lam + 2.0 * mu / 3.0
 
 
-def energy_density(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = True):
+def energy_density(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = True, vl=None):
     """Psi per tet [J/m^3]."""
+    if name == "valanis_landel":
+        return vl.energy(F)
     C = np.einsum("mki,mkj->mij", F, F)
     I1 = np.einsum("mii->m", C)
     J = _det(F)
@@ -72,8 +77,10 @@ def energy_density(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = 
     raise KeyError(f"unknown constitutive model {name!r}; expected one of {', '.join(MODEL_CODES)}")
 
 
-def first_piola(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = True):
+def first_piola(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = True, vl=None):
     """P = dPsi/dF per tet (m, 3, 3) [Pa]. Works on complex F (for the complex-step tangent)."""
+    if name == "valanis_landel":
+        return vl.piola(F)
     m = (slice(None), None, None)
     if name == "stvk":
         C = np.einsum("mki,mkj->mij", F, F)
@@ -102,8 +109,10 @@ def first_piola(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = Tru
     raise KeyError(f"unknown constitutive model {name!r}; expected one of {', '.join(MODEL_CODES)}")
 
 
-def tangent(name: str, F, mu, lam, eta=None, a0=None, h: float = 1e-30, volumetric: bool = True):
+def tangent(name: str, F, mu, lam, eta=None, a0=None, h: float = 1e-30, volumetric: bool = True, vl=None):
     """dP/dF as (m, 9, 9) (row = P_ij, column = F_kl, row-major), by complex step."""
+    if name == "valanis_landel":
+        return vl.tangent(F)
     m = F.shape[0]
     out = np.empty((m, 9, 9))
     Fc = F.astype(np.complex128)
@@ -118,6 +127,15 @@ def project_psd(H):
     """Clamp the negative eigenvalues of symmetric matrices (..., n, n) to zero."""
     w, V = np.linalg.eigh(0.5 * (H + np.swapaxes(H, -1, -2)))
     return np.einsum("...ij,...j,...kj->...ik", V, np.maximum(w, 0.0), V)
+
+
+def model_curves(model):
+    """The Valanis-Landel curves of a ``valanis_landel`` model (``None`` for the other models)."""
+    if model.constitutive != "valanis_landel":
+        return None
+    from sim.valanis_landel import ValanisLandel
+
+    return ValanisLandel.from_params(model.material_params)
 
 
 def model_params(model):
@@ -145,7 +163,8 @@ def elastic_energy(model, x) -> float:
     name, mu, lam, eta, a0 = model_params(model)
     F = deformation_gradients(x, model.tets, model.Dm_inv)
     anp = uses_anp(model)
-    e = float(np.sum(model.volume * energy_density(name, F, mu, lam, eta, a0, volumetric=not anp)))
+    e = float(np.sum(model.volume * energy_density(name, F, mu, lam, eta, a0, volumetric=not anp,
+                                                    vl=model_curves(model))))
     if anp:
         from sim import anp as anp_module
 
@@ -158,7 +177,7 @@ def elastic_gradient(model, x) -> np.ndarray:
     name, mu, lam, eta, a0 = model_params(model)
     F = deformation_gradients(x, model.tets, model.Dm_inv)
     anp = uses_anp(model)
-    P = first_piola(name, F, mu, lam, eta, a0, volumetric=not anp)
+    P = first_piola(name, F, mu, lam, eta, a0, volumetric=not anp, vl=model_curves(model))
     G = model.volume[:, None, None] * P @ np.swapaxes(model.Dm_inv, 1, 2)  # (m, 3, 3): columns = nodes 1..3
     g = np.zeros_like(x)
     for k in range(3):
@@ -194,7 +213,7 @@ def element_hessians(model, x, project: bool = True) -> np.ndarray:
     F = deformation_gradients(x, model.tets, model.Dm_inv)
     B = dF_dx(model.Dm_inv)
     anp = uses_anp(model)
-    T = tangent(name, F, mu, lam, eta, a0, volumetric=not anp)
+    T = tangent(name, F, mu, lam, eta, a0, volumetric=not anp, vl=model_curves(model))
     H = model.volume[:, None, None] * np.matmul(np.matmul(B.transpose(0, 2, 1), T), B)
     if anp:
         from sim import anp as anp_module

@@ -68,8 +68,9 @@ class EBM:
         name, mu, lam, eta, a0 = constitutive.model_params(m)
         F = constitutive.deformation_gradients(x, m.tets, m.Dm_inv)
         with np.errstate(invalid="ignore", divide="ignore"):
-            psi = constitutive.energy_density(name, F, mu, lam, eta, a0)
-            P = constitutive.first_piola(name, F, mu, lam, eta, a0)
+            vl = constitutive.model_curves(m)
+            psi = constitutive.energy_density(name, F, mu, lam, eta, a0, vl=vl)
+            P = constitutive.first_piola(name, F, mu, lam, eta, a0, vl=vl)
         if self.prony is not None:
             S = np.linalg.solve(F, P)  # second Piola S = F^-1 P
             if commit:

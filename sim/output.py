@@ -17,8 +17,9 @@ def write_vtu(path, model: Model, state: State) -> None:
     name, mu, lam, eta, a0 = constitutive.model_params(model)
     F = constitutive.deformation_gradients(state.x, model.tets, model.Dm_inv)
     with np.errstate(invalid="ignore", divide="ignore"):
-        psi = constitutive.energy_density(name, F, mu, lam, eta, a0)
-        P = constitutive.first_piola(name, F, mu, lam, eta, a0)
+        vl = constitutive.model_curves(model)
+        psi = constitutive.energy_density(name, F, mu, lam, eta, a0, vl=vl)
+        P = constitutive.first_piola(name, F, mu, lam, eta, a0, vl=vl)
     mesh = meshio.Mesh(
         state.x,
         [("tetra", model.tets)],
