@@ -28,7 +28,9 @@ from sim.probe import resolve_contact
 class XPBD:
     """XPBD integrator; settings: ``substeps``, ``iterations``, ``solver`` ("gauss_seidel" | "jacobi"),
     ``coupling`` ("coupled": both constraints of a tet in one 2x2 solve | "sequential": in turn),
-    ``relaxation`` (Jacobi), ``damping`` [1/s] (velocity decay ``exp(-damping dt)``)."""
+    ``relaxation`` (Jacobi), ``damping`` [1/s] (velocity decay ``exp(-damping dt)``), ``strain_min`` /
+    ``strain_max``: hard unilateral limits on the stretch |F a| along the rest frame's axes and the
+    fibre (Qian 4.3.4, eq. 4.21 on stretches), projected after every sweep."""
 
     name = "xpbd"
 
@@ -42,8 +44,9 @@ class XPBD:
         if self.solver not in ("gauss_seidel", "jacobi"):
             raise ValueError(f"xpbd solver must be 'gauss_seidel' or 'jacobi', found {self.solver!r}")
         coupling = settings.get("coupling", "coupled" if settings.get("coupled", True) else "sequential")
-        if settings.get("strain_min") is not None or settings.get("strain_max") is not None:
-            raise NotImplementedError("xpbd strain-limit constraints (strain_min, strain_max) are not implemented yet")
+        smin, smax = settings.get("strain_min"), settings.get("strain_max")
+        self.strain_limits = None if smin is None and smax is None else (
+            0.0 if smin is None else float(smin), np.inf if smax is None else float(smax))
         if coupling not in ("coupled", "sequential"):
             raise ValueError(f"xpbd coupling must be 'coupled' or 'sequential', found {coupling!r}")
         self.mode = 1 if coupling == "coupled" else 0
@@ -62,6 +65,13 @@ class XPBD:
         self.alpha_hyd = np.where(has_lam, 1.0 / np.where(has_lam, lam, 1.0) / volume, 1e30)
         self.gamma = np.where(has_lam, 1.0 + mu / np.where(has_lam, lam, 1.0), 1.0)
         self.w = m.inverse_mass()
+        if self.strain_limits is not None:
+            # limited axes: the rest frame's x, y, z and, for fibred materials, the fibre (Qian 4.3.4)
+            axes = [np.broadcast_to(np.eye(3)[k], (m.n_tets, 3)) for k in range(3)]
+            if m.fibre is not None:
+                axes.append(m.fibre)
+            self.limit_axes = np.ascontiguousarray(
+                np.stack([np.einsum("mij,mj->mi", m.Dm_inv, a) for a in axes], axis=1)[order])
         self.kin_idx, _ = m.kinematic_targets(0.0)
         self.kin_base = m.X[self.kin_idx]
         row_of = {int(node): row for row, node in enumerate(self.kin_idx)}
@@ -103,10 +113,13 @@ class XPBD:
             x[self.kin_idx] = self._kinematic_targets(t_next)
             lam_dev[:] = 0.0
             lam_hyd[:] = 0.0
-            # with probes, contact is resolved after every iteration; else all iterations run in one call
-            per_call = 1 if m.probes else self.iterations
+            # with probes or strain limits, those are resolved after every sweep; else one call does all
+            per_call = 1 if (m.probes or self.strain_limits is not None) else self.iterations
             for _ in range(self.iterations // per_call):
                 self._sweeps(x, lam_dev, lam_hyd, 1.0 / (h * h), per_call)
+                if self.strain_limits is not None:
+                    kernels.strain_limit(x, self.tets, self.limit_axes, self.w, *self.strain_limits,
+                                         self.colour_start)
                 for probe in m.probes:
                     resolve_contact(x, probe, t_next, self.w)
             v = (x - x_prev) / h

@@ -177,3 +177,51 @@ def jacobi(x, tets, B, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, inv_dt2
             project_tet(t, x, out, False, tets, B, w, alpha_dev, alpha_hyd, gamma, lam_dev, lam_hyd, inv_dt2, mode,
                         tet_scale[t])
         x += out
+
+
+@njit(cache=True, inline="always")
+def _limit_axis(t, x, tets, b, w, smin, smax):
+    """Project one tet's stretch |F a| along a material axis into [smin, smax] (a zero-compliance
+    unilateral constraint, Qian 4.21): F a = sum_k (x_k - x_0) b_k with b = Dm^-1 a."""
+    i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+    b1, b2, b3 = b[0], b[1], b[2]
+    fx = (x[i1, 0] - x[i0, 0]) * b1 + (x[i2, 0] - x[i0, 0]) * b2 + (x[i3, 0] - x[i0, 0]) * b3
+    fy = (x[i1, 1] - x[i0, 1]) * b1 + (x[i2, 1] - x[i0, 1]) * b2 + (x[i3, 1] - x[i0, 1]) * b3
+    fz = (x[i1, 2] - x[i0, 2]) * b1 + (x[i2, 2] - x[i0, 2]) * b2 + (x[i3, 2] - x[i0, 2]) * b3
+    stretch = np.sqrt(fx * fx + fy * fy + fz * fz)
+    if stretch < 1e-12:
+        return
+    if stretch > smax:
+        c = stretch - smax
+    elif stretch < smin:
+        c = stretch - smin
+    else:
+        return
+    nx, ny, nz = fx / stretch, fy / stretch, fz / stretch
+    b0 = -(b1 + b2 + b3)
+    w0, w1, w2, w3 = w[i0], w[i1], w[i2], w[i3]
+    denom = w0 * b0 * b0 + w1 * b1 * b1 + w2 * b2 * b2 + w3 * b3 * b3  # |n| = 1
+    if denom < 1e-300:
+        return
+    s = -c / denom
+    for i, wi, bi in ((i0, w0, b0), (i1, w1, b1), (i2, w2, b2), (i3, w3, b3)):
+        x[i, 0] += wi * bi * s * nx
+        x[i, 1] += wi * bi * s * ny
+        x[i, 2] += wi * bi * s * nz
+
+
+@njit(cache=True, parallel=True)
+def strain_limit(x, tets, axes, w, smin, smax, colour_start):
+    """One coloured sweep of the strain-limit constraints; ``axes`` (m, k, 3) holds Dm^-1 a for each
+    limited material axis a of each tet (stored in colour order like the other per-tet data)."""
+    for c in range(colour_start.shape[0] - 1):
+        lo = colour_start[c]
+        hi = colour_start[c + 1]
+        if hi - lo < PARALLEL_MIN_TETS:
+            for j in range(lo, hi):
+                for k in range(axes.shape[1]):
+                    _limit_axis(j, x, tets, axes[j, k], w, smin, smax)
+        else:
+            for j in prange(lo, hi):
+                for k in range(axes.shape[1]):
+                    _limit_axis(j, x, tets, axes[j, k], w, smin, smax)

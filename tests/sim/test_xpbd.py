@@ -85,3 +85,36 @@ def test_same_inputs_same_result():
     a = _settle(model, steps=20).x
     b = _settle(model, steps=20).x
     assert np.array_equal(a, b)
+
+
+def _stretches(model, x):
+    from sim import constitutive
+
+    F = constitutive.deformation_gradients(x, model.tets, model.Dm_inv)
+    return np.linalg.norm(F, axis=1)  # |F e_k| for k = x, y, z: column norms
+
+
+def test_strain_limits_cap_the_stretch_of_a_soft_hanging_column():
+    mesh, model = _column(E=3000.0)  # soft: hangs with ~60 % stretch at the top without limits
+    model.fixed[:] = False
+    model.fixed[select.nodes_on_side(mesh.points, 2, "max")] = True
+    free = _settle(model, steps=150)
+    limited = _settle(model, steps=150, strain_max=1.1, strain_min=0.9)
+    assert _stretches(model, free.x)[:, 2].max() > 1.3
+    s = _stretches(model, limited.x)
+    assert s.max() <= 1.1 + 2e-3 and s.min() >= 0.9 - 2e-3
+    tip = select.nodes_on_side(mesh.points, 2, "min")
+    assert (limited.x[tip, 2] - mesh.points[tip, 2]).mean() > (free.x[tip, 2] - mesh.points[tip, 2]).mean()
+
+
+def test_fibre_axis_is_limited_too():
+    mesh, model = _column(E=3000.0)
+    model.fixed[:] = False
+    model.fixed[select.nodes_on_side(mesh.points, 2, "max")] = True
+    fibre = np.array([0.0, 0.6, 0.8])
+    model.fibre = np.tile(fibre, (model.n_tets, 1))
+    state = _settle(model, steps=150, strain_max=1.1)
+    from sim import constitutive
+
+    F = constitutive.deformation_gradients(state.x, model.tets, model.Dm_inv)
+    assert np.linalg.norm(F @ fibre, axis=1).max() <= 1.1 + 2e-3
