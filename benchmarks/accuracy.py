@@ -20,6 +20,7 @@ import numba
 
 from sim.cases import relative_l2, variational_error, zhang_cylinder
 from sim.ebm import EBM
+from sim.integrators import SimulationDiverged
 from sim.model import State
 from sim.reference import ReferenceIntegrator
 from sim.xpbd import XPBD
@@ -66,12 +67,17 @@ def main() -> None:
         ebm = EBM(case.model, {"iterations": iterations})
         state = State.at_rest(case.model)
         start = time.perf_counter()
-        for _ in range(4):
-            state = ebm.step(state, 0.25)
+        key = f"ebm_{iterations}"
+        try:
+            for _ in range(8):
+                state = ebm.step(state, 0.125)
+        except SimulationDiverged as e:
+            result[f"{key}_err"] = f"diverged: {e}"
+            rows.append((key, float("nan"), float("nan"), time.perf_counter() - start))
+            continue
         seconds = time.perf_counter() - start
         err = relative_l2(state.x - case.model.X, u_ref)
         var = variational_error(case.model, state.x, x_ref)
-        key = f"ebm_{iterations}"
         result[f"{key}_err"], result[f"{key}_var"], result[f"{key}_s"] = round(err, 5), float(f"{var:.3g}"), round(seconds, 2)
         rows.append((key, err, var, seconds))
 

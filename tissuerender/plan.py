@@ -12,6 +12,10 @@ from dataclasses import dataclass
 
 from tissuerender.scene import Scene
 
+# integrators that evaluate the material's Prony series / fibre term (XPBD uses stable Neo-Hookean only)
+PRONY_INTEGRATORS = frozenset({"ebm"})
+FIBRE_INTEGRATORS = frozenset({"ebm", "reference", "explicit", "cnn"})
+
 
 @dataclass(frozen=True)
 class Stage:
@@ -92,11 +96,17 @@ def make_plan(scene: Scene) -> Plan:
         why_not = "static scene: no tool, load, prescribed motion or gravity moves a body"
     decide("simulate", simulate, f"{integrator} integrator driven by {', '.join(movers)}", why_not)
     mech = [materials.get_preset(o.material).mechanics for o in bodies]
-    decide("prony_state", simulate and any(m.viscoelastic for m in mech),
+    viscous = simulate and any(m.viscoelastic for m in mech)
+    decide("prony_state", viscous and integrator in PRONY_INTEGRATORS,
            "a body's material is viscoelastic (Prony series)",
-           "no simulated viscoelastic material" if simulate else "no simulation")
-    decide("fibre_terms", simulate and any(m.fibre is not None for m in mech), "a body's material is anisotropic",
-           "no simulated anisotropic material" if simulate else "no simulation")
+           (f"the {integrator} integrator has no viscoelastic terms: the Prony series is ignored "
+            f"(supported by {', '.join(sorted(PRONY_INTEGRATORS))})") if viscous else
+           ("no simulated viscoelastic material" if simulate else "no simulation"))
+    fibred = simulate and any(m.fibre is not None for m in mech)
+    decide("fibre_terms", fibred and integrator in FIBRE_INTEGRATORS, "a body's material is anisotropic",
+           (f"the {integrator} integrator has no fibre terms: the material is treated as isotropic "
+            f"(supported by {', '.join(sorted(FIBRE_INTEGRATORS))})") if fibred else
+           ("no simulated anisotropic material" if simulate else "no simulation"))
     decide("contact", simulate and bool(scene.tools), "tools touch the tissue",
            "no tools" if not scene.tools else "no simulation")
     decide("embed", simulate, "render surfaces follow the simulated tets", "render surfaces stay at rest")
