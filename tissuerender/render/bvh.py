@@ -93,60 +93,63 @@ class BVH:
 
 
 @njit(cache=True, inline="always")
-def _ray_box(o, inv_d, lo, hi, t_max):
-    t0, t1 = 0.0, t_max
-    for a in range(3):
-        ta = (lo[a] - o[a]) * inv_d[a]
-        tb = (hi[a] - o[a]) * inv_d[a]
-        if ta > tb:
-            ta, tb = tb, ta
-        t0 = max(t0, ta)
-        t1 = min(t1, tb)
-        if t0 > t1:
-            return False
-    return True
+def _ray_box(ox, oy, oz, ix, iy, iz, lo, hi, node, t_max):
+    """Slab test of the ray o + t d (inverse direction i) against node's box, for t in [0, t_max]."""
+    ta = (lo[node, 0] - ox) * ix
+    tb = (hi[node, 0] - ox) * ix
+    t0 = max(0.0, min(ta, tb))
+    t1 = min(t_max, max(ta, tb))
+    ta = (lo[node, 1] - oy) * iy
+    tb = (hi[node, 1] - oy) * iy
+    t0 = max(t0, min(ta, tb))
+    t1 = min(t1, max(ta, tb))
+    ta = (lo[node, 2] - oz) * iz
+    tb = (hi[node, 2] - oz) * iz
+    t0 = max(t0, min(ta, tb))
+    t1 = min(t1, max(ta, tb))
+    return t0 <= t1
 
 
 @njit(cache=True, inline="always")
-def _ray_tri(o, d, p0, p1, p2):
-    """Möller–Trumbore: distance along d to the triangle, or inf."""
-    e1 = p1 - p0
-    e2 = p2 - p0
-    pv = np.cross(d, e2)
-    det = e1[0] * pv[0] + e1[1] * pv[1] + e1[2] * pv[2]
+def _ray_tri(ox, oy, oz, dx, dy, dz, pts, a, b, c):
+    """Möller–Trumbore in scalars: distance along d to triangle (a, b, c), or inf."""
+    e1x, e1y, e1z = pts[b, 0] - pts[a, 0], pts[b, 1] - pts[a, 1], pts[b, 2] - pts[a, 2]
+    e2x, e2y, e2z = pts[c, 0] - pts[a, 0], pts[c, 1] - pts[a, 1], pts[c, 2] - pts[a, 2]
+    px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
     if abs(det) < 1e-18:
         return np.inf
     inv = 1.0 / det
-    tv = o - p0
-    u = (tv[0] * pv[0] + tv[1] * pv[1] + tv[2] * pv[2]) * inv
+    tx, ty, tz = ox - pts[a, 0], oy - pts[a, 1], oz - pts[a, 2]
+    u = (tx * px + ty * py + tz * pz) * inv
     if u < 0.0 or u > 1.0:
         return np.inf
-    qv = np.cross(tv, e1)
-    v = (d[0] * qv[0] + d[1] * qv[1] + d[2] * qv[2]) * inv
+    qx, qy, qz = ty * e1z - tz * e1y, tz * e1x - tx * e1z, tx * e1y - ty * e1x
+    v = (dx * qx + dy * qy + dz * qz) * inv
     if v < 0.0 or u + v > 1.0:
         return np.inf
-    t = (e2[0] * qv[0] + e2[1] * qv[1] + e2[2] * qv[2]) * inv
+    t = (e2x * qx + e2y * qy + e2z * qz) * inv
     return t if t > 0.0 else np.inf
 
 
 @njit(cache=True)
-def _trace(lo, hi, left, right, start, count, order, pts, tris, o, d, t_max, any_hit):
-    inv_d = np.empty(3)
-    for a in range(3):
-        inv_d[a] = 1.0 / d[a] if d[a] != 0.0 else 1e300
-    stack = np.empty(128, np.int64)
+def _trace(lo, hi, left, right, start, count, order, pts, tris, ox, oy, oz, dx, dy, dz, t_max, any_hit, stack):
+    """Nearest hit distance (or any hit when ``any_hit``) below t_max; ``stack`` is scratch space."""
+    ix = 1.0 / dx if dx != 0.0 else 1e300
+    iy = 1.0 / dy if dy != 0.0 else 1e300
+    iz = 1.0 / dz if dz != 0.0 else 1e300
     sp = 1
     stack[0] = 0
     best = t_max
     while sp > 0:
         sp -= 1
         node = stack[sp]
-        if not _ray_box(o, inv_d, lo[node], hi[node], best):
+        if not _ray_box(ox, oy, oz, ix, iy, iz, lo, hi, node, best):
             continue
         if left[node] < 0:
             for k in range(start[node], start[node] + count[node]):
                 t = order[k]
-                th = _ray_tri(o, d, pts[tris[t, 0]], pts[tris[t, 1]], pts[tris[t, 2]])
+                th = _ray_tri(ox, oy, oz, dx, dy, dz, pts, tris[t, 0], tris[t, 1], tris[t, 2])
                 if th < best:
                     best = th
                     if any_hit:
@@ -158,19 +161,26 @@ def _trace(lo, hi, left, right, start, count, order, pts, tris, o, d, t_max, any
     return best
 
 
+RAYS_PER_TASK = 256  # rays per parallel task: one traversal stack each
+
+
 @njit(cache=True, parallel=True)
 def _occluded(lo, hi, left, right, start, count, order, pts, tris, origins, targets, eps):
     n = origins.shape[0]
     out = np.zeros(n, np.bool_)
-    for i in prange(n):
-        d = targets[i] - origins[i]
-        length = np.sqrt((d * d).sum())
-        if length <= 2 * eps:
-            continue
-        d = d / length
-        o = origins[i] + eps * d
-        t = _trace(lo, hi, left, right, start, count, order, pts, tris, o, d, length - 2 * eps, True)
-        out[i] = t < length - 2 * eps
+    for task in prange((n + RAYS_PER_TASK - 1) // RAYS_PER_TASK):
+        stack = np.empty(128, np.int64)
+        for i in range(task * RAYS_PER_TASK, min(n, (task + 1) * RAYS_PER_TASK)):
+            dx = targets[i, 0] - origins[i, 0]
+            dy = targets[i, 1] - origins[i, 1]
+            dz = targets[i, 2] - origins[i, 2]
+            length = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if length <= 2 * eps:
+                continue
+            dx, dy, dz = dx / length, dy / length, dz / length
+            t = _trace(lo, hi, left, right, start, count, order, pts, tris, origins[i, 0] + eps * dx,
+                       origins[i, 1] + eps * dy, origins[i, 2] + eps * dz, dx, dy, dz, length - 2 * eps, True, stack)
+            out[i] = t < length - 2 * eps
     return out
 
 
@@ -178,6 +188,9 @@ def _occluded(lo, hi, left, right, start, count, order, pts, tris, origins, targ
 def _closest(lo, hi, left, right, start, count, order, pts, tris, origins, directions, t_max):
     n = origins.shape[0]
     out = np.empty(n)
-    for i in prange(n):
-        out[i] = _trace(lo, hi, left, right, start, count, order, pts, tris, origins[i], directions[i], t_max, False)
+    for task in prange((n + RAYS_PER_TASK - 1) // RAYS_PER_TASK):
+        stack = np.empty(128, np.int64)
+        for i in range(task * RAYS_PER_TASK, min(n, (task + 1) * RAYS_PER_TASK)):
+            out[i] = _trace(lo, hi, left, right, start, count, order, pts, tris, origins[i, 0], origins[i, 1],
+                            origins[i, 2], directions[i, 0], directions[i, 1], directions[i, 2], t_max, False, stack)
     return out
