@@ -1,0 +1,91 @@
+"""What rendering accuracy costs in time: error against a converged reference versus seconds per frame,
+for light samples (uniform and adaptive m(d)) and supersampling, on scenes/liver_probe.toml with
+shadows and SSS.
+
+Error: mean FLIP (NVIDIA FLIP via flip-evaluator, LDR) and relative RMSE of the linear HDR, against
+the same frame rendered by the project with many samples and 2x2 supersampling. Images are compared
+after an ACES tone map + sRGB only (no lens effects), so the error is the renderer's.
+
+Usage: .venv/bin/python benchmarks/render_convergence.py [--quick]
+Last line: one JSON object with every point ("<sampling>_m<samples>_ss<k>": {seconds, flip, rel_rmse})
+and best_flip_within_0p5s_t2 (the lowest FLIP among settings rendering within 0.5 s on 2 threads).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirname(os.path.abspath(__file__))]
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+
+import postfx  # noqa: E402
+from postfx.params import Tonemap  # noqa: E402
+from tissuerender import load_scene, make_plan  # noqa: E402
+from tissuerender.golden import flip  # noqa: E402
+from tissuerender.pipeline import build_world, render_hdr  # noqa: E402
+from tissuerender.stages import StageRecorder  # noqa: E402
+
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "liver_probe.toml"
+
+
+def variant(scene, width, height, sampling, samples, ss):
+    return dataclasses.replace(
+        scene,
+        light=scene.light.model_copy(update={"samples": samples, "sampling": sampling}),
+        effects=scene.effects.model_copy(update={"shadows": True, "sss": True}),
+        output=scene.output.model_copy(update={"resolution": [width, height], "supersampling": ss}),
+    )
+
+
+def render(scene):
+    plan = make_plan(scene)
+    world = build_world(scene, plan, StageRecorder())
+    start = time.perf_counter()
+    result, _ = render_hdr(world, scene, plan, StageRecorder(), 0.0, scene.seed)
+    seconds = time.perf_counter() - start
+    ldr = postfx.apply_chain(result.hdr, result.depth, [("tonemap", Tonemap())],
+                             postfx.Lens(scene.camera.fov_deg, scene.width, scene.height), backend="numpy").image
+    return result.hdr, ldr, seconds
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="320x240, fewer settings, 64-sample reference")
+    args = parser.parse_args()
+    width, height = (320, 240) if args.quick else (640, 480)
+    ref_samples = 64 if args.quick else 256
+    base = load_scene(SCENE)
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    render(variant(base, 64, 48, "uniform", 1, 1))  # compile
+    ref_hdr, ref_ldr, ref_seconds = render(variant(base, width, height, "uniform", ref_samples, 2))
+    result: dict = {"resolution": [width, height], "reference": f"uniform, {ref_samples} samples, 2x2 supersampling",
+                    "reference_seconds": round(ref_seconds, 2)}
+    samples_list = (1, 4, 16) if args.quick else (1, 2, 4, 8, 16, 32, 64)
+    best = None
+    print(f"{'setting':24s} {'seconds':>8s} {'FLIP':>8s} {'rel RMSE':>9s}")
+    for ss in (1, 2):
+        for sampling in ("uniform", "adaptive"):
+            for m in samples_list:
+                hdr, ldr, seconds = render(variant(base, width, height, sampling, m, ss))
+                mean_flip, _ = flip(ref_ldr, ldr)
+                rel = float(np.sqrt(np.mean((hdr - ref_hdr) ** 2)) / max(np.sqrt(np.mean(ref_hdr ** 2)), 1e-30))
+                key = f"{sampling}_m{m}_ss{ss}"
+                result[key] = {"seconds": round(seconds, 3), "flip": round(mean_flip, 5), "rel_rmse": round(rel, 5)}
+                print(f"{key:24s} {seconds:8.3f} {mean_flip:8.4f} {rel:9.4f}")
+                if seconds <= 0.5 and (best is None or mean_flip < best):
+                    best = mean_flip
+    result["best_flip_within_0p5s_t2"] = None if best is None else round(best, 5)
+    result["machine"] = f"{platform.machine()} {os.cpu_count()} cpus, numba threads {numba.get_num_threads()}"
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()
