@@ -158,7 +158,8 @@ def settings_for(scene: Scene, seed: int):
     e = scene.effects
     return RenderSettings(shadows=e.shadows, sss=e.sss, ao=e.ao, mucus_reflection=e.mucus_reflection,
                           light_samples=scene.light.samples, supersampling=scene.output.supersampling,
-                          seed=seed, motion=e.motion)
+                          seed=seed, motion=e.motion, ambient=tuple(e.ambient), ao_distance=e.ao_distance,
+                          ao_samples=e.ao_samples)
 
 
 def tool_surface(tool, t: float):

@@ -188,3 +188,44 @@ def test_thin_tissue_transmits_more_through_the_subsurface_term():
     assert red_thin > red_thick  # exp(-sigma T) larger for thin tissue
     zero = render_frame(slab(0.0), cam, light, RenderSettings(sss=True)).hdr
     assert np.isfinite(zero).all() and zero.min() >= 0.0
+
+
+def _ao_scene():
+    """A floor (z = 0, 0.2 m square) and a wall (x = 0) meeting in a right-angled corner."""
+    floor = np.array([[0.0, -0.1, 0.0], [0.2, -0.1, 0.0], [0.2, 0.1, 0.0], [0.0, 0.1, 0.0]])
+    wall = np.array([[0.0, -0.1, 0.0], [0.0, 0.1, 0.0], [0.0, 0.1, 0.2], [0.0, -0.1, 0.2]])
+    pts = np.vstack([floor, wall])
+    tris = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    return pts, tris
+
+
+def test_ambient_occlusion_is_one_in_the_open_and_one_half_in_a_corner():
+    from tissuerender.render.bvh import BVH
+    from tissuerender.render.frame import ambient_occlusion
+
+    pts, tris = _ao_scene()
+    bvh = BVH(pts, tris)
+    n = np.tile([0.0, 0.0, 1.0], (3, 1))
+    pos = np.array([[0.15, 0.0, 0.0], [1e-4, 0.0, 0.0], [0.01, 0.0, 0.0]])
+    vis = ambient_occlusion(bvh, pos, n, samples=4096, distance=0.05, eps=1e-6, seed=1)
+    assert vis[0] == pytest.approx(1.0)  # nothing within reach
+    assert vis[1] == pytest.approx(0.5, abs=0.02)  # the wall takes half the cosine-weighted hemisphere
+    # 1 cm from the wall, rays up to 5 cm: blocked where they reach x < 0 within 5 cm, analytically
+    # 1/2 - (1/pi) int ... ; check it lies strictly between the corner and the open floor
+    assert 0.5 < vis[2] < 0.9
+
+
+def test_ambient_light_on_a_lambertian_floor_is_albedo_times_radiance(tmp_path):
+    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+    from materials import get_preset
+
+    pts, tris = _ao_scene()
+    floor = RenderObject(points=pts[:4], triangles=tris[:2], normals=None, uv=None, material="liver")
+    cam = Camera(position=(0.1, 0.0, 0.3), look_at=(0.1, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg=30.0,
+                 near=0.01, far=1.0, width=16, height=16)
+    light = AreaLight(radiance=(0.0, 0.0, 0.0), samples=1)
+    ambient = (0.5, 0.4, 0.3)
+    out = render_frame([floor], cam, light, RenderSettings(ambient=ambient, ao=True, ao_samples=16))
+    albedo = np.asarray(get_preset("liver").optics.albedo)
+    centre = out.hdr[8, 8]
+    assert np.allclose(centre, albedo * ambient, rtol=1e-5)  # open floor: no occlusion

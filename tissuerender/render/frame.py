@@ -81,6 +81,9 @@ class RenderSettings:
     supersampling: int = 1
     seed: int = 0
     motion: bool = False
+    ambient: tuple = (0.0, 0.0, 0.0)  # uniform environment radiance [W m^-2 sr^-1]
+    ao_distance: float = 0.02  # occlusion ray length [m]
+    ao_samples: int = 8
 
 
 @dataclass
@@ -142,6 +145,37 @@ def light_sample(s: int, m: np.ndarray, rotation: np.ndarray, pos: np.ndarray, c
     wi /= np.sqrt(d2)[:, None]
     cos_l = np.clip(-(wi @ ln), 0.0, None)
     return q, wi, cos_l / d2 * area / m
+
+
+def tangent_frames(n: np.ndarray):
+    """Two unit tangents (t, b) per unit normal, a right-handed frame (t, b, n) (Duff et al. 2017)."""
+    sign = np.where(n[:, 2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    t = np.stack([1.0 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], axis=1)
+    bt = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], axis=1)
+    return t, bt
+
+
+def ambient_occlusion(bvh, pos: np.ndarray, n: np.ndarray, samples: int, distance: float, eps: float,
+                      seed: int) -> np.ndarray:
+    """Cosine-weighted visibility of the hemisphere within ``distance``: the fraction of a uniform
+    environment's irradiance that reaches each point (1 in the open, 1/2 in a right-angled corner).
+    Directions are a stratified Hammersley set on the cosine-weighted hemisphere, rotated per point
+    (Cranley-Patterson) with a seeded generator."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0xA0]))
+    rotation = rng.random((pos.shape[0], 2))
+    t, b = tangent_frames(n)
+    visible = np.zeros(pos.shape[0])
+    origin = pos + eps * n
+    for s in range(samples):
+        u1 = np.mod((s + 0.5) / samples + rotation[:, 0], 1.0)
+        u2 = np.mod(radical_inverse(np.full(pos.shape[0], s)) + rotation[:, 1], 1.0)
+        r, phi = np.sqrt(u1), 2.0 * np.pi * u2
+        local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u1, 0.0))], axis=1)
+        d = local[:, :1] * t + local[:, 1:2] * b + local[:, 2:] * n
+        visible += ~bvh.occluded(origin, origin + distance * d)
+    return visible / samples
 
 
 def irradiance(pos: np.ndarray, n: np.ndarray, light: AreaLight, camera: Camera, m: np.ndarray,
@@ -230,8 +264,6 @@ def clip_near(P, N, V, T, tri_mat, camera: Camera):
 def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSettings,
                  recorder: StageRecorder | None = None) -> FrameResult:
     """Render one frame: linear HDR radiance (H, W, 3) float32, view depth (H, W) (inf = background)."""
-    if settings.ao:
-        raise NotImplementedError("ambient occlusion (effects.ao) is not implemented yet")
     if settings.mucus_reflection:
         raise NotImplementedError("the mucus SH reflection (effects.mucus_reflection) is not implemented yet")
     if light.sampling == "importance":
@@ -262,7 +294,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         if settings.motion:
             gbuffer["velocity"] = np.einsum("kc,kcd->kd", b, V[corner])
     bvh = None
-    if settings.shadows or settings.sss:
+    if settings.shadows or settings.sss or settings.ao:
         with rec.run("bvh"):
             bvh = BVH(P, T)
     scale = float(np.ptp(P, axis=0).max()) if P.size else 1.0
@@ -298,6 +330,18 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
                                     None if sss is None else sss[act])
             radiance[act] += f_cos * weight[:, None]
         radiance *= np.asarray(light.radiance, float)
+    ambient = np.asarray(settings.ambient, float)
+    if np.any(ambient > 0.0):
+        # a uniform environment L_a on a Lambertian surface: int (albedo / pi) L_a cos dw = albedo L_a,
+        # times the cosine-weighted visibility when ambient occlusion is on
+        visibility = np.ones(pos.shape[0])
+        if settings.ao:
+            with rec.run("ao"):
+                visibility = ambient_occlusion(bvh, pos, n, int(settings.ao_samples), float(settings.ao_distance),
+                                               2 * eps, settings.seed)
+                gbuffer["ao"] = visibility
+        radiance += albedo * ambient[None, :] * visibility[:, None]
+    with rec.run("shade"):
         hdr[jj, ii] = np.maximum(radiance, 0.0).astype(np.float32)
     out_depth = depth.astype(np.float32)
     if ss > 1:

@@ -252,11 +252,21 @@ class EffectsBase(Strict):
     shadows: bool = False
     sss: bool = False
     ao: bool = False
+    ambient: RGB = [0.0, 0.0, 0.0]
+    ao_distance: Annotated[float, Field(gt=0.0, le=100.0)] = 0.02
+    ao_samples: Annotated[int, Field(ge=1, le=256)] = 8
     mucus_reflection: bool = False
     motion: bool = False
     backend: Literal["auto", "numpy", "osmesa"] = "auto"
     preset: str | None = None
     order: list[str] | None = None
+
+    @model_validator(mode="after")
+    def _ao_needs_ambient(self):
+        if self.ao and not any(v > 0.0 for v in self.ambient):
+            raise ValueError("ao darkens the ambient light, but ambient is [0, 0, 0]: expected a non-zero "
+                             "ambient radiance (e.g. ambient = [0.5, 0.5, 0.5])")
+        return self
 
 
 _EFFECTS_MODEL = None
