@@ -17,12 +17,19 @@ where forward Euler diverges, but the motion settles into a bounded oscillation 
 K h rather than decaying (measured on the mass–spring–damper: error floor 0.14/0.11/0.055 m for
 K = 5/4/2 with state saturation, 0.23/0.19/0.12 m with output saturation, at h = 0.01 s).
 Settings: ``K`` [m/s] (default 4), ``saturation``, ``substeps``, ``force_model``, ``rayleigh_alpha``,
-``rayleigh_beta`` (see ``sim.forces``).
+``rayleigh_beta`` (see ``sim.forces``). ``iterations`` is ignored (the CNN has no inner iterations).
+
+``force_model = "energy"`` (Zhang 4.4–4.30, ``sim.cnn_energy``): the contact forces (the model's constant
+nodal forces) become a Poisson energy source whose three-layer potential evolves with the simulation time
+on its own CNN array, and the load is applied as the forces of that potential (4.30, signed) instead of
+at the contact nodes; the restoring term ``K P`` of 4.31 is the linear FEM stiffness on displacement.
+Gravity still acts as a body force. Extra settings ``energy_rho``, ``energy_gradient``.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from sim.cnn_energy import EnergyPropagation
 from sim.forces import Accelerations
 from sim.model import Model, State
 from sim.msd import saturate
@@ -42,14 +49,34 @@ class CNN:
         self.saturation = settings.get("saturation", "state")
         if self.saturation not in SATURATIONS:
             raise ValueError(f"cnn: saturation must be one of {', '.join(SATURATIONS)}, found {self.saturation!r}")
+        self.energy = None
+        if settings.get("force_model") == "energy":
+            self.energy = EnergyPropagation(model, settings)
+            settings = {**settings, "force_model": "linear_fem"}
+            inv_m = model.inverse_mass()
+            self._contact_accel = np.zeros_like(model.X)
+            self._contact_accel[self.energy.contact] = self.energy.contact_force
+            self._contact_accel *= inv_m[:, None]
+            self._inv_m = inv_m
         self.accel = Accelerations(model, settings, "cnn")
+
+    def _accelerations(self, x: np.ndarray, s: np.ndarray, phi: np.ndarray | None) -> np.ndarray:
+        a = self.accel(x, s)
+        if self.energy is not None:  # the contact load, redistributed by energy propagation
+            a += self.energy.forces(phi, x) * self._inv_m[:, None] - self._contact_accel
+        return a
 
     def step(self, state: State, dt: float) -> State:
         h = dt / self.substeps
         x, t = state.x.copy(), state.t
         s = state.private.get("cnn_state", state.v).copy()  # the (unsaturated) cell state
+        phi = None
+        if self.energy is not None:
+            phi = state.private.get("cnn_potential", np.zeros_like(x)).copy()
         for _ in range(self.substeps):
-            a = self.accel(x, s)
+            a = self._accelerations(x, s, phi)
+            if phi is not None:
+                phi = self.energy.evolve(phi, h)
             if self.saturation == "state":
                 x = x + h * s
                 s = saturate(s + h * a, self.K)
@@ -61,5 +88,7 @@ class CNN:
             self.accel.check(x, t)
         private = dict(state.private)
         private["cnn_state"] = s
+        if phi is not None:
+            private["cnn_potential"] = phi
         v = saturate(s, self.K)  # the velocity the output actually moves with
         return State(x=x, v=v, t=t, private=private)
