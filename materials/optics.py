@@ -28,6 +28,54 @@ from dataclasses import dataclass
 
 
 @dataclass(frozen=True)
+class MucosaLayers:
+    """The four layers of a mucosa (Qian §6.2.3, Figs. 6.8–6.9), top to bottom:
+
+    1. epithelium + mucus: a smooth dielectric clear coat (GGX, ``coat_roughness``, ``coat_ior``) of
+       thickness ``coat_thickness`` [m] with absorption ``coat_absorption`` [1/m] per RGB channel;
+    2. granular layer: a rougher specular lobe (``granular_roughness``) taking ``granular_weight`` of
+       the light that reaches it;
+    3. connective tissue (lamina propria): diffuse ``connective_colour``, thickness
+       ``connective_thickness`` [m] and absorption ``connective_absorption`` [1/m];
+    4. submucosa (vessels): diffuse ``submucosa_colour`` under it.
+
+    Layers combine through transmittance (``tissuerender.render.brdf.layered_reflectance_cos``), so
+    the stack never reflects more than arrives (white-furnace test).
+    """
+
+    coat_roughness: float = 0.06
+    coat_ior: float = 1.34
+    coat_thickness: float = 150e-6
+    coat_absorption: tuple[float, float, float] = (5.0, 8.0, 15.0)
+    granular_weight: float = 0.04
+    granular_roughness: float = 0.35
+    connective_colour: tuple[float, float, float] = (0.70, 0.36, 0.32)
+    connective_thickness: float = 400e-6
+    connective_absorption: tuple[float, float, float] = (250.0, 900.0, 1300.0)
+    submucosa_colour: tuple[float, float, float] = (0.45, 0.10, 0.09)
+
+    @property
+    def base_albedo(self) -> tuple[float, float, float]:
+        """Diffuse albedo of layers 3-4: the connective layer reflects ``c3 (1 - e)``, the submucosa
+        ``c4 e`` with ``e = exp(-2 sigma_3 d_3)`` the round trip through the connective layer."""
+        out = []
+        for c3, c4, s3 in zip(self.connective_colour, self.submucosa_colour, self.connective_absorption):
+            e = pow(2.718281828459045, -2.0 * s3 * self.connective_thickness)
+            out.append(c3 * (1.0 - e) + c4 * e)
+        return tuple(out)
+
+
+# Colon mucosa layers. Mucus: mostly water, n = 1.33–1.35 (Hale & Querry 1973 for water; mucins add
+# little), adherent gel 100–800 um thick in the colon (Atuma et al., Am. J. Physiol. 280 (2001) G922),
+# nearly transparent in the visible (water mu_a < 0.01/mm; a little scattering from mucins: a few /m
+# here). Connective tissue / lamina propria and submucosa: mu_a, mu_s' from [Bashkatov05] (mucosa) and
+# blood-rich submucosa [Jacques13]; layer thickness ~0.3–0.5 mm for the colonic mucosa (histology
+# texts, e.g. Ross & Pawlina). The coat roughness and granular weight are design choices (wet, glossy
+# highlights; a faint broad sheen from the granular layer).
+COLON_LAYERS = MucosaLayers()
+
+
+@dataclass(frozen=True)
 class OpticalMaterial:
     """Diffuse albedo (linear RGB), GGX roughness alpha, tissue index of refraction, subsurface weight
     ``k_sss`` (Qian eq. 6.5), effective attenuation ``sigma`` [1/m] per channel and the subsurface
@@ -39,6 +87,12 @@ class OpticalMaterial:
     k_sss: float = 0.3
     sigma: tuple[float, float, float] = (400.0, 1500.0, 2500.0)
     sss_colour: tuple[float, float, float] = (0.8, 0.25, 0.2)
+    layers: MucosaLayers | None = None
+
+    @property
+    def diffuse_albedo(self) -> tuple[float, float, float]:
+        """The Lambert albedo the renderer uses: the layer stack's base for layered materials."""
+        return self.layers.base_albedo if self.layers is not None else self.albedo
 
     @property
     def f0(self) -> float:
@@ -54,7 +108,8 @@ OPTICS: dict[str, OpticalMaterial] = {
                               sigma=(800.0, 3000.0, 4000.0), sss_colour=(0.75, 0.15, 0.1)),
     # Colon mucosa: wet, glossy, pink; mu_s' ~ 1.5/mm, mu_a(620) ~ 0.05/mm [Bashkatov05] -> 0.5/mm red.
     "colon_mucosa": OpticalMaterial(albedo=(0.62, 0.28, 0.24), roughness=0.18, ior=1.35, k_sss=0.4,
-                                    sigma=(500.0, 1800.0, 2600.0), sss_colour=(0.85, 0.3, 0.25)),
+                                    sigma=(500.0, 1800.0, 2600.0), sss_colour=(0.85, 0.3, 0.25),
+                                    layers=COLON_LAYERS),
     # Fat: weakly absorbing, strongly scattering; mu_a ~ 0.01/mm, mu_s' ~ 1.2/mm [Bashkatov05].
     "fat": OpticalMaterial(albedo=(0.78, 0.65, 0.38), roughness=0.45, ior=1.46, k_sss=0.5,
                            sigma=(190.0, 260.0, 420.0), sss_colour=(0.9, 0.75, 0.45)),

@@ -107,7 +107,6 @@ def test_cli_render_end_to_end(scene_dict, write_scene, tmp_path, capsys):
     ("cnn", {}, None),
     ("explicit", {"rayleigh_beta": 0.001}, None),
     ("ebm", {"update": "average"}, None),
-    ("cnn_chainmail", {}, "'cnn_chainmail' integrator is not implemented yet"),
     ("cnn", {"force_model": "energy_propagation"}, "energy-propagation force model .* not implemented yet"),
     ("xpbd", {"strain_max": 1.1, "strain_min": 0.9}, None),
 ])

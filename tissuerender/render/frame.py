@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import materials
-from tissuerender.render.brdf import reflectance_cos
+from tissuerender.render.brdf import layered_reflectance_cos, reflectance_cos
 from tissuerender.render.bvh import BVH
 from tissuerender.render.raster import camera_basis, rasterize_objects
 from tissuerender.stages import StageRecorder, recorder_or_new
@@ -261,6 +261,25 @@ def clip_near(P, N, V, T, tri_mat, camera: Camera):
     return np.asarray(P), np.asarray(N), np.asarray(V), T, tri_mat
 
 
+def _layer_arrays(optics, mat):
+    """Per-shading-point parameters of the mucosa layer stack, or None when no material has layers."""
+    if not any(o.layers is not None for o in optics):
+        return None
+    from materials.optics import MucosaLayers
+
+    neutral = MucosaLayers(coat_ior=1.0, coat_thickness=0.0, granular_weight=0.0)
+    stacks = [o.layers if o.layers is not None else neutral for o in optics]
+    return {
+        "mask": np.array([o.layers is not None for o in optics])[mat],
+        "coat_alpha": np.array([st.coat_roughness for st in stacks])[mat],
+        "coat_ior": np.array([st.coat_ior for st in stacks])[mat],
+        "coat_thickness": np.array([st.coat_thickness for st in stacks])[mat],
+        "coat_sigma": np.array([st.coat_absorption for st in stacks], float).reshape(-1, 3)[mat],
+        "granular_weight": np.array([st.granular_weight for st in stacks])[mat],
+        "granular_alpha": np.array([st.granular_roughness for st in stacks])[mat],
+    }
+
+
 def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSettings,
                  recorder: StageRecorder | None = None) -> FrameResult:
     """Render one frame: linear HDR radiance (H, W, 3) float32, view depth (H, W) (inf = background)."""
@@ -287,7 +306,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         wo /= np.maximum(np.linalg.norm(wo, axis=1, keepdims=True), 1e-12)
         n = np.where((np.einsum("ij,ij->i", n, wo) < 0.0)[:, None], -n, n)  # seen from behind
         mat = tri_mat[tri_id[jj, ii]]
-        albedo = np.array([o.albedo for o in optics], float).reshape(-1, 3)[mat]
+        albedo = np.array([o.diffuse_albedo for o in optics], float).reshape(-1, 3)[mat]
         alpha = np.array([o.roughness for o in optics], float)[mat] if optics else np.zeros(0)
         f0 = np.array([o.f0 for o in optics], float)[mat] if optics else np.zeros(0)
         gbuffer.update(depth=depth, position=pos, normal=n, material_id=mat, albedo=albedo, roughness=alpha)
@@ -312,6 +331,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
             colour = np.array([o.sss_colour for o in optics], float).reshape(-1, 3)[mat]
             transmit = np.exp(-sigma * np.where(np.isfinite(thickness), thickness, np.inf)[:, None])
             sss = k_sss[:, None] * (colour / np.pi * transmit - albedo / np.pi)
+    layered = _layer_arrays(optics, mat)
     hdr = np.zeros((H, W, 3), np.float32)
     with rec.run("shade"):
         centre, ln, eu, ev = light_frame(light, camera)
@@ -328,6 +348,14 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
                     weight = weight * ~bvh.occluded(pos[act] + 2 * eps * n[act], q)
             f_cos = reflectance_cos(n[act], wo[act], wi, albedo[act], alpha[act], f0[act],
                                     None if sss is None else sss[act])
+            if layered is not None:
+                sel = layered["mask"][act]
+                if sel.any():
+                    idx = act[sel]
+                    f_cos[sel] = layered_reflectance_cos(
+                        n[idx], wo[idx], wi[sel], f_cos[sel], layered["coat_alpha"][idx], layered["coat_ior"][idx],
+                        layered["coat_thickness"][idx], layered["coat_sigma"][idx], layered["granular_weight"][idx],
+                        layered["granular_alpha"][idx])
             radiance[act] += f_cos * weight[:, None]
         radiance *= np.asarray(light.radiance, float)
     ambient = np.asarray(settings.ambient, float)
