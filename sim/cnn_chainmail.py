@@ -28,7 +28,11 @@ It has no mass, stiffness or forces: it moves nodes only as far as the strain li
 plausible, not mechanical. Models with external forces or gravity are rejected (use the
 prescribed displacements of a probe or a ramp instead). Velocities are the position change over dt.
 
-Settings: ``alpha`` (default 0.1; the thesis sets it "according to the spring stiffness"),
+Probes (``model.probes``) are input displacements too: nodes inside a tool are pushed to its surface
+before the sweeps and after each one.
+
+Settings: ``alpha`` (default 0.1; the thesis sets it "according to the spring stiffness"), or the
+stretch ratios ``strain_min`` / ``strain_max`` (the scene's keys; they override alpha),
 ``iterations`` (sweeps per step, default 500), ``tolerance`` (default 1e-4), ``substeps``.
 """
 from __future__ import annotations
@@ -37,6 +41,7 @@ import numpy as np
 
 from sim.integrators import SimulationDiverged
 from sim.model import Model, State
+from sim.probe import resolve_contact
 
 LOCAL_EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
 
@@ -47,10 +52,14 @@ def mesh_edges(tets: np.ndarray) -> np.ndarray:
     return np.unique(pairs, axis=0)
 
 
-def strain_limits(X: np.ndarray, edges: np.ndarray, alpha: float):
-    """Zhang 3.53: ``l_min = (1 - alpha) l0``, ``l_max = (1 + alpha) l0`` [m] per edge."""
+def strain_limits(X: np.ndarray, edges: np.ndarray, alpha: float, strain_min: float | None = None,
+                  strain_max: float | None = None):
+    """Zhang 3.53: ``l_min = (1 - alpha) l0``, ``l_max = (1 + alpha) l0`` [m] per edge; ``strain_min`` /
+    ``strain_max`` (stretch ratios) replace ``1 - alpha`` / ``1 + alpha`` for asymmetric limits."""
     l0 = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
-    return l0, (1.0 - alpha) * l0, (1.0 + alpha) * l0
+    lo = 1.0 - alpha if strain_min is None else strain_min
+    hi = 1.0 + alpha if strain_max is None else strain_max
+    return l0, lo * l0, hi * l0
 
 
 def mu(u: np.ndarray, l_min: np.ndarray, l_max: np.ndarray) -> np.ndarray:
@@ -69,6 +78,12 @@ class CNNChainMail:
         self.alpha = float(settings.get("alpha", 0.1))
         if not 0.0 < self.alpha < 1.0:
             raise ValueError(f"cnn_chainmail: alpha (the strain limit of eq. 3.53) must be in (0, 1), found {self.alpha}")
+        lo, hi = settings.get("strain_min"), settings.get("strain_max")
+        lo = None if lo is None else float(lo)
+        hi = None if hi is None else float(hi)
+        if (lo is not None and not 0.0 < lo <= 1.0) or (hi is not None and not hi >= 1.0):
+            raise ValueError(f"cnn_chainmail: strain_min must be in (0, 1] and strain_max >= 1 (stretch ratios of "
+                             f"eq. 3.53), found {lo}, {hi}")
         self.iterations = int(settings.get("iterations", 500))
         self.tolerance = float(settings.get("tolerance", 1e-4))
         self.substeps = int(settings.get("substeps", 1))
@@ -80,8 +95,9 @@ class CNNChainMail:
             raise ValueError("cnn_chainmail: the ChainMail is geometric and has no forces, but the model has external "
                              "forces or gravity; drive it with prescribed displacements (a probe or a ramp) instead")
         self.edges = mesh_edges(model.tets)
-        self.l0, self.l_min, self.l_max = strain_limits(model.X, self.edges, self.alpha)
+        self.l0, self.l_min, self.l_max = strain_limits(model.X, self.edges, self.alpha, lo, hi)
         self.fixed_state = model.kinematic_mask()
+        self.inv_mass = model.inverse_mass()  # zero on kinematic nodes: probes do not move them
         self.last_sweeps = 0
         self.last_violation = 0.0
 
@@ -90,8 +106,9 @@ class CNNChainMail:
         u = np.linalg.norm(x[self.edges[:, 1]] - x[self.edges[:, 0]], axis=1)
         return float(np.max(np.maximum(np.maximum(u - self.l_max, self.l_min - u), 0.0) / self.l0, initial=0.0))
 
-    def relax(self, x: np.ndarray) -> np.ndarray:
-        """Sweep the CNN (3.52 with 3.60–3.63, unit pseudo-step) until every link is within its limits."""
+    def relax(self, x: np.ndarray, t: float = 0.0) -> np.ndarray:
+        """Sweep the CNN (3.52 with 3.60–3.63) until every link is within its limits; nodes a probe
+        touches are pushed back to its surface after every sweep (the probe is an input displacement)."""
         i, j = self.edges[:, 0], self.edges[:, 1]
         free = ~self.fixed_state
         for sweep in range(1, self.iterations + 1):
@@ -110,6 +127,8 @@ class CNNChainMail:
             count = np.bincount(i[active], minlength=x.shape[0]) + np.bincount(j[active], minlength=x.shape[0])
             step = free / np.maximum(count, 1)  # tau_i = 1 / C_i; fixed-state cells never move
             x = x + delta * step[:, None]
+            for probe in self.model.probes:
+                resolve_contact(x, probe, t, self.inv_mass)
         self.last_sweeps, self.last_violation = self.iterations, self.violation(x)
         return x
 
@@ -120,7 +139,9 @@ class CNNChainMail:
             t += h
             idx, target = self.model.kinematic_targets(t)
             x[idx] = target  # the input displacement (current source, §3.4.3) and the fixed cells
-            x = self.relax(x)
+            for probe in self.model.probes:
+                resolve_contact(x, probe, t, self.inv_mass)
+            x = self.relax(x, t)
             if not np.isfinite(x).all():
                 raise SimulationDiverged(f"cnn_chainmail: non-finite positions at t = {t:.6g} s")
         v = (x - state.x) / dt

@@ -92,3 +92,29 @@ def test_chainmail_rejects_forces_and_bad_parameters():
     model.gravity = np.array([0.0, 0.0, -9.81])
     with pytest.raises(ValueError, match="prescribed displacements"):
         make_integrator("cnn_chainmail", model, {})
+
+
+def test_probe_pushes_the_chainmail_and_scene_strain_keys():
+    """A sphere probe pressing 6 cm into the top: no node ends inside it, the links obey the scene's
+    asymmetric stretch limits [0.85, 1.1], and the dent spreads beyond the touched nodes."""
+    from sim.probe import Probe
+    mesh = procedural.box((1.0, 1.0, 1.0), (6, 6, 6))
+    model = Model.from_mesh(mesh, E=3500.0, nu=0.45, density=1060.0)
+    model.fixed = np.zeros(model.n_nodes, dtype=bool)
+    model.fixed[select.nodes_on_side(mesh.points, 2, "min")] = True
+    radius = 0.25
+    model.probes = [Probe(kind="sphere", radius=radius, times=[0.0, 0.5],
+                          positions=[[0.5, 0.5, 1.0 + radius], [0.5, 0.5, 1.0 + radius - 0.06]])]
+    cm = make_integrator("cnn_chainmail", model, {"strain_min": 0.85, "strain_max": 1.1, "tolerance": 1e-4})
+    state = State.at_rest(model)
+    for _ in range(5):
+        state = cm.step(state, 0.1)
+    centre = np.array([0.5, 0.5, 1.0 + radius - 0.06])
+    assert np.linalg.norm(state.x - centre, axis=1).min() >= radius - 1e-9
+    edges = mesh_edges(model.tets)
+    l0 = np.linalg.norm(model.X[edges[:, 1]] - model.X[edges[:, 0]], axis=1)
+    u = np.linalg.norm(state.x[edges[:, 1]] - state.x[edges[:, 0]], axis=1)
+    assert np.all(u / l0 >= 0.85 - 2e-4) and np.all(u / l0 <= 1.1 + 2e-4)
+    dz = model.X[:, 2] - state.x[:, 2]
+    assert dz.max() == pytest.approx(0.06, abs=1e-3)  # the top centre follows the sphere's lowest point
+    assert np.count_nonzero(dz > 1e-3) > 5  # and drags a neighbourhood down with it
