@@ -43,6 +43,8 @@ class CNN:
     def __init__(self, model: Model, settings: dict):
         self.model = model
         self.substeps = int(settings.get("substeps", 1))
+        if self.substeps < 1:
+            raise ValueError(f"cnn: substeps must be a positive integer, found {self.substeps}")
         self.K = float(settings.get("K", 4.0))
         if not self.K > 0.0:
             raise ValueError(f"cnn: saturation bound K must be positive [m/s], found {self.K}")
@@ -59,6 +61,7 @@ class CNN:
             self._contact_accel *= inv_m[:, None]
             self._inv_m = inv_m
         self.accel = Accelerations(model, settings, "cnn")
+        self.kinematic = model.kinematic_mask()
 
     def _accelerations(self, x: np.ndarray, s: np.ndarray, phi: np.ndarray | None) -> np.ndarray:
         a = self.accel(x, s)
@@ -77,6 +80,7 @@ class CNN:
             a = self._accelerations(x, s, phi)
             if phi is not None:
                 phi = self.energy.evolve(phi, h)
+            x_old = x
             if self.saturation == "state":
                 x = x + h * s
                 s = saturate(s + h * a, self.K)
@@ -85,6 +89,7 @@ class CNN:
                 s = s + h * a
             t += h
             self.accel.set_kinematic(x, s, t, h)
+            s[self.kinematic] = (x[self.kinematic] - x_old[self.kinematic]) / h  # the target's speed
             self.accel.check(x, t)
         private = dict(state.private)
         private["cnn_state"] = s
