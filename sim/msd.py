@@ -40,8 +40,10 @@ class MassSpringDamper:
 
 
 def saturate(v, K: float):
-    """Zhang eq. 4.33: f(v) = (|v + K| - |v - K|) / 2, i.e. v clamped to [-K, K]."""
-    return 0.5 * (np.abs(v + K) - np.abs(v - K))
+    """Zhang eq. 4.33: f(v) = (|v + K| - |v - K|) / 2, i.e. v clamped to [-K, K]. Evaluated as the clamp:
+    identical in exact arithmetic, free of the |.| form's rounding, and K = inf gives f(v) = v
+    (the |.| form gives inf - inf = NaN)."""
+    return np.clip(v, -K, K)
 
 
 def simulate(system: MassSpringDamper, dt: float, t_end: float, scheme: str = "explicit", K: float = np.inf,
