@@ -88,6 +88,7 @@ class OpticalMaterial:
     sigma: tuple[float, float, float] = (400.0, 1500.0, 2500.0)
     sss_colour: tuple[float, float, float] = (0.8, 0.25, 0.2)
     layers: MucosaLayers | None = None
+    bsdf: str = "tissue"  # "tissue" (Cook-Torrance + SSS, optional layers) | "roughplastic" (Mitsuba's model)
 
     @property
     def diffuse_albedo(self) -> tuple[float, float, float]:
@@ -119,7 +120,8 @@ OPTICS: dict[str, OpticalMaterial] = {
     # Peritoneum: thin translucent serosa over perfused tissue.
     "peritoneum": OpticalMaterial(albedo=(0.62, 0.40, 0.36), roughness=0.28, ior=1.38, k_sss=0.4,
                                   sigma=(400.0, 1200.0, 1800.0), sss_colour=(0.8, 0.4, 0.35)),
-    # The plain reference: a grey dielectric (n = 1.5), no subsurface term.
-    "plastic": OpticalMaterial(albedo=(0.55, 0.55, 0.58), roughness=0.25, ior=1.5, k_sss=0.0,
-                               sigma=(1.0, 1.0, 1.0), sss_colour=(0.0, 0.0, 0.0)),
+    # The plain reference: Mitsuba 3's roughplastic (GGX coat, polypropylene n = 1.49) over a grey
+    # Lambertian base, no subsurface term (tissuerender.render.plastic).
+    "plastic": OpticalMaterial(albedo=(0.55, 0.55, 0.58), roughness=0.25, ior=1.49, k_sss=0.0,
+                               sigma=(1.0, 1.0, 1.0), sss_colour=(0.0, 0.0, 0.0), bsdf="roughplastic"),
 }

@@ -21,6 +21,7 @@ import numpy as np
 
 import materials
 from tissuerender.render.brdf import layered_reflectance_cos, reflectance_cos
+from tissuerender.render.plastic import roughplastic_cos
 from tissuerender.render.bvh import BVH
 from tissuerender.render.raster import camera_basis, rasterize_objects
 from tissuerender.stages import StageRecorder, recorder_or_new
@@ -348,6 +349,12 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
                     weight = weight * ~bvh.occluded(pos[act] + 2 * eps * n[act], q)
             f_cos = reflectance_cos(n[act], wo[act], wi, albedo[act], alpha[act], f0[act],
                                     None if sss is None else sss[act])
+            for mid, o in enumerate(optics):
+                if o.bsdf == "roughplastic":
+                    sel = mat[act] == mid
+                    if sel.any():
+                        idx = act[sel]
+                        f_cos[sel] = roughplastic_cos(n[idx], wo[idx], wi[sel], albedo[idx], o.roughness, o.ior)
             if layered is not None:
                 sel = layered["mask"][act]
                 if sel.any():

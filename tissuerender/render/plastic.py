@@ -1,0 +1,93 @@
+"""The rough-plastic reference material: a GGX dielectric coating over a Lambertian base, as
+documented for Mitsuba 3's ``roughplastic`` BSDF (so any scene can be checked against an independent
+renderer, ``benchmarks/plastic_vs_mitsuba.py``).
+
+    f cos = F(wo.h) D(h) G1(wi) G1(wo) / (4 cos_o)                                  (coating)
+          + rho / (1 - F_dr) * t(cos_i) t(cos_o) / eta^2 * cos_i / pi                 (base)
+
+- D: GGX with alpha; G1: the separable Smith shadowing of GGX; F: exact unpolarised dielectric
+  Fresnel for the index ratio eta = n_coat / n_outside (1.49 by default, Mitsuba's polypropylene);
+- t(mu) = 1 - E_spec(mu): the light the rough coating lets through, one minus the coating's
+  directional albedo, tabulated per (alpha, eta) by quadrature;
+- F_dr = 2 int_0^1 F(mu, 1/eta) mu dmu: the diffuse reflectance of the coating seen from inside (total
+  internal reflection included), so the base's repeated internal bounces sum to rho / (1 - F_dr).
+"""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from tissuerender.render.brdf import ggx_D
+
+
+def fresnel(cos_i: np.ndarray, eta: float) -> np.ndarray:
+    """Exact unpolarised Fresnel reflectance for a ray at cosine cos_i hitting an interface of relative
+    index eta (transmitted-side / incident-side; eta < 1 allows total internal reflection)."""
+    c = np.clip(np.abs(cos_i), 0.0, 1.0)
+    sin_t2 = (1.0 - c * c) / (eta * eta)
+    tir = sin_t2 >= 1.0
+    cos_t = np.sqrt(np.maximum(1.0 - sin_t2, 0.0))
+    rs = (c - eta * cos_t) / np.maximum(c + eta * cos_t, 1e-300)
+    rp = (eta * c - cos_t) / np.maximum(eta * c + cos_t, 1e-300)
+    return np.where(tir, 1.0, 0.5 * (rs * rs + rp * rp))
+
+
+def smith_G1(cos: np.ndarray, alpha) -> np.ndarray:
+    """Smith's GGX masking G1 = 2 / (1 + sqrt(1 + alpha^2 tan^2 theta))."""
+    c = np.clip(cos, 1e-12, 1.0)
+    tan2 = (1.0 - c * c) / (c * c)
+    return 2.0 / (1.0 + np.sqrt(1.0 + alpha * alpha * tan2))
+
+
+def _coating(n_l, n_v, n_h, v_h, alpha, eta):
+    return fresnel(v_h, eta) * ggx_D(n_h, alpha) * smith_G1(n_l, alpha) * smith_G1(n_v, alpha) / (4.0 * np.maximum(n_v, 1e-12))
+
+
+@functools.lru_cache(maxsize=32)
+def _transmittance_table(alpha: float, eta: float, n_mu: int = 64, n_samples: int = 256):
+    """(mu grid, 1 - E_spec(mu)): the coating's directional albedo by stratified GGX sampling."""
+    mus = np.linspace(1e-3, 1.0, n_mu)
+    g = (np.arange(n_samples) + 0.5) / n_samples
+    u, v = np.meshgrid(g, g, indexing="ij")
+    u, v = u.ravel(), v.ravel()
+    cos_h = np.sqrt((1.0 - u) / (1.0 + (alpha * alpha - 1.0) * u))
+    sin_h = np.sqrt(np.maximum(1.0 - cos_h * cos_h, 0.0))
+    h = np.stack([sin_h * np.cos(2 * np.pi * v), sin_h * np.sin(2 * np.pi * v), cos_h], axis=1)
+    albedo = np.empty(n_mu)
+    for k, mu in enumerate(mus):
+        wo = np.array([np.sqrt(1.0 - mu * mu), 0.0, mu])
+        v_h = h @ wo
+        wi = 2.0 * v_h[:, None] * h - wo
+        ok = (wi[:, 2] > 0.0) & (v_h > 0.0)
+        # estimator f cos / pdf with pdf(wi) = D (n.h) / (4 wo.h):  F G (wo.h) / (mu (n.h))
+        est = fresnel(v_h, eta) * smith_G1(wi[:, 2], alpha) * smith_G1(mu, alpha) * v_h / (mu * h[:, 2])
+        albedo[k] = np.sum(np.where(ok, est, 0.0)) / est.size
+    return mus, 1.0 - np.clip(albedo, 0.0, 1.0)
+
+
+def transmittance(mu: np.ndarray, alpha: float, eta: float) -> np.ndarray:
+    mus, t = _transmittance_table(float(alpha), float(eta))
+    return np.interp(np.clip(mu, mus[0], 1.0), mus, t)
+
+
+@functools.lru_cache(maxsize=32)
+def internal_diffuse_reflectance(eta: float, n: int = 4096) -> float:
+    """F_dr = 2 int_0^1 F(mu, 1/eta) mu dmu (midpoint rule): diffuse light hitting the coating from inside."""
+    mu = (np.arange(n) + 0.5) / n
+    return float(2.0 * np.mean(fresnel(mu, 1.0 / eta) * mu))
+
+
+def roughplastic_cos(n, wo, wi, albedo, alpha: float, eta: float):
+    """f(wi, wo) (n . wi) for k points of one rough-plastic material (albedo (k, 3))."""
+    alpha = max(float(alpha), 1e-3)
+    h = wo + wi
+    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+    n_l = np.clip(np.einsum("ij,ij->i", n, wi), 0.0, 1.0)
+    n_v = np.clip(np.einsum("ij,ij->i", n, wo), 0.0, 1.0)
+    n_h = np.clip(np.einsum("ij,ij->i", n, h), 0.0, 1.0)
+    v_h = np.clip(np.einsum("ij,ij->i", wo, h), 0.0, 1.0)
+    spec = np.where((n_l > 0) & (n_v > 0), _coating(n_l, n_v, n_h, v_h, alpha, eta), 0.0)
+    t = transmittance(n_l, alpha, eta) * transmittance(n_v, alpha, eta)
+    base = albedo / (1.0 - internal_diffuse_reflectance(eta)) * (t * n_l / (np.pi * eta * eta))[:, None]
+    return spec[:, None] + base
