@@ -14,7 +14,6 @@ from sim import constitutive, linear_fem
 from sim.integrators import SimulationDiverged
 
 FORCE_MODELS = ("constitutive", "linear_fem")
-NOT_YET = {"energy_propagation": "the CNN energy-propagation force model (Zhang 4.4-4.30)"}
 
 
 class Accelerations:
@@ -22,9 +21,6 @@ class Accelerations:
         self.model = model
         self.who = who
         self.force_model = settings.get("force_model", "constitutive")
-        if self.force_model in NOT_YET:
-            raise NotImplementedError(f"{who}: {NOT_YET[self.force_model]} is not implemented yet; "
-                                      f"use force_model = \"constitutive\" or \"linear_fem\"")
         if self.force_model not in FORCE_MODELS:
             raise ValueError(f"{who}: force_model must be one of {', '.join(FORCE_MODELS)}, "
                              f"found {self.force_model!r}")
@@ -60,7 +56,9 @@ class Accelerations:
                                      f"body's size: the integration diverged; reduce dt")
 
     def set_kinematic(self, x: np.ndarray, v: np.ndarray, t: float, h: float) -> None:
-        """Place fixed and prescribed nodes at their targets at ``t`` with the matching velocity."""
+        """Place fixed and prescribed nodes at their targets at ``t``, moving with their targets' speed
+        over the last step (not the gap to where the integrator's update had put them)."""
         idx, target = self.model.kinematic_targets(t)
-        v[idx] = (target - x[idx]) / h
+        _, before = self.model.kinematic_targets(t - h)
+        v[idx] = (target - before) / h
         x[idx] = target

@@ -107,7 +107,7 @@ def test_cli_render_end_to_end(scene_dict, write_scene, tmp_path, capsys):
     ("cnn", {}, None),
     ("explicit", {"rayleigh_beta": 0.001}, None),
     ("ebm", {"update": "average"}, None),
-    ("cnn", {"force_model": "energy_propagation"}, "energy-propagation force model .* not implemented yet"),
+    ("cnn", {"force_model": "energy_propagation"}, "force_model"),
     ("xpbd", {"strain_max": 1.1, "strain_min": 0.9}, None),
 ])
 def test_integrator_choice_renders_or_exits_2_with_the_reason(scene_dict, write_scene, tmp_path, capsys,

@@ -102,9 +102,3 @@ def test_cube_large_step_explicit_blows_up_and_cnn_stays_finite(saturation):
     # 0.56 m with output saturation, on a 1 m cube whose static sag is 1.2 cm)
     assert peak < 1.0
     assert np.abs(state.v).max() <= 4.0 + 1e-12
-
-
-def test_unimplemented_force_model_is_a_clear_error():
-    model, _ = _zhang_cube()
-    with pytest.raises(NotImplementedError, match="energy-propagation"):
-        make_integrator("cnn", model, {"force_model": "energy_propagation"})

@@ -134,7 +134,9 @@ class EBMSettings(Strict):
 class CNNSettings(Strict):
     K: Annotated[float, Field(gt=0.0, le=1e4)] = 4.0
     saturation: Literal["output", "state"] = "state"
-    force_model: Literal["constitutive", "linear_fem", "energy_propagation"] = "constitutive"
+    force_model: Literal["constitutive", "linear_fem", "energy"] = "constitutive"
+    energy_rho: Annotated[float, Field(gt=0.0, le=1e6)] = 1.0
+    energy_gradient: Literal["median_dual", "edge"] = "median_dual"
     rayleigh_alpha: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
     rayleigh_beta: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
 
@@ -142,6 +144,7 @@ class CNNSettings(Strict):
 class ChainMailSettings(Strict):
     strain_min: Annotated[float, Field(gt=0.0, le=1.0)] = 0.8
     strain_max: Annotated[float, Field(ge=1.0, le=10.0)] = 1.2
+    tolerance: Annotated[float, Field(gt=0.0, le=0.1)] = 1e-4
 
 
 class ExplicitSettings(Strict):
