@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from tissuerender.render.plastic import (fresnel, internal_diffuse_reflectance, roughplastic_cos, smith_G1,
-                                         transmittance)
+                                         smooth_internal_reflectance, transmittance)
 
 
 def test_fresnel_limits():
@@ -20,7 +20,10 @@ def test_internal_diffuse_reflectance_matches_the_published_fit():
     # uses seen from inside): eta = 1/1.49 -> 0.5906
     e = 1.0 / 1.49
     fit = -1.4399 * e * e + 0.7099 * e + 0.6681 + 0.0636 / e
-    assert internal_diffuse_reflectance(1.49) == pytest.approx(fit, abs=2e-3)
+    assert smooth_internal_reflectance(1.49) == pytest.approx(fit, abs=2e-3)
+    # a rough interface reflects less from inside (masking), and tends to the smooth one as alpha -> 0
+    assert internal_diffuse_reflectance(1.49, 0.25) < smooth_internal_reflectance(1.49)
+    assert internal_diffuse_reflectance(1.49, 0.01) == pytest.approx(fit, abs=0.03)
 
 
 @pytest.mark.parametrize("alpha", [0.05, 0.25, 0.6])

@@ -9,8 +9,9 @@ renderer, ``benchmarks/plastic_vs_mitsuba.py``).
   Fresnel for the index ratio eta = n_coat / n_outside (1.49 by default, Mitsuba's polypropylene);
 - t(mu) = 1 - E_spec(mu): the light the rough coating lets through, one minus the coating's
   directional albedo, tabulated per (alpha, eta) by quadrature;
-- F_dr = 2 int_0^1 F(mu, 1/eta) mu dmu: the diffuse reflectance of the coating seen from inside (total
-  internal reflection included), so the base's repeated internal bounces sum to rho / (1 - F_dr).
+- F_dr = 2 int_0^1 E_spec(mu, 1/eta) mu dmu: the rough coating's reflectance for diffuse light from
+  inside (total internal reflection included), so the base's repeated internal bounces sum to
+  rho / (1 - F_dr).
 """
 from __future__ import annotations
 
@@ -44,10 +45,14 @@ def _coating(n_l, n_v, n_h, v_h, alpha, eta):
     return fresnel(v_h, eta) * ggx_D(n_h, alpha) * smith_G1(n_l, alpha) * smith_G1(n_v, alpha) / (4.0 * np.maximum(n_v, 1e-12))
 
 
+TABLE_SIZE = 64  # cosines 0 ... 1, evenly spaced (Mitsuba's grid for the same tables)
+
+
 @functools.lru_cache(maxsize=32)
-def _transmittance_table(alpha: float, eta: float, n_mu: int = 64, n_samples: int = 256):
-    """(mu grid, 1 - E_spec(mu)): the coating's directional albedo by stratified GGX sampling."""
-    mus = np.linspace(1e-3, 1.0, n_mu)
+def _coating_albedo(alpha: float, eta: float, n_samples: int = 256):
+    """(mu grid, E_spec(mu)): the rough coating's directional albedo by stratified GGX sampling."""
+    mus = np.maximum(np.arange(TABLE_SIZE) / (TABLE_SIZE - 1.0), 1e-6)
+    n_mu = TABLE_SIZE
     g = (np.arange(n_samples) + 0.5) / n_samples
     u, v = np.meshgrid(g, g, indexing="ij")
     u, v = u.ravel(), v.ravel()
@@ -63,19 +68,27 @@ def _transmittance_table(alpha: float, eta: float, n_mu: int = 64, n_samples: in
         # estimator f cos / pdf with pdf(wi) = D (n.h) / (4 wo.h):  F G (wo.h) / (mu (n.h))
         est = fresnel(v_h, eta) * smith_G1(wi[:, 2], alpha) * smith_G1(mu, alpha) * v_h / (mu * h[:, 2])
         albedo[k] = np.sum(np.where(ok, est, 0.0)) / est.size
-    return mus, 1.0 - np.clip(albedo, 0.0, 1.0)
+    return mus, np.clip(albedo, 0.0, 1.0)
 
 
 def transmittance(mu: np.ndarray, alpha: float, eta: float) -> np.ndarray:
-    mus, t = _transmittance_table(float(alpha), float(eta))
-    return np.interp(np.clip(mu, mus[0], 1.0), mus, t)
+    """t(mu) = 1 - E_spec(mu), linearly interpolated in the table."""
+    mus, albedo = _coating_albedo(float(alpha), float(eta))
+    return np.interp(np.clip(mu, 0.0, 1.0), mus, 1.0 - albedo)
+
+
+def smooth_internal_reflectance(eta: float, n: int = 4096) -> float:
+    """2 int_0^1 F(mu, 1/eta) mu dmu for a smooth interface (midpoint rule), for comparison."""
+    mu = (np.arange(n) + 0.5) / n
+    return float(2.0 * np.mean(fresnel(mu, 1.0 / eta) * mu))
 
 
 @functools.lru_cache(maxsize=32)
-def internal_diffuse_reflectance(eta: float, n: int = 4096) -> float:
-    """F_dr = 2 int_0^1 F(mu, 1/eta) mu dmu (midpoint rule): diffuse light hitting the coating from inside."""
-    mu = (np.arange(n) + 0.5) / n
-    return float(2.0 * np.mean(fresnel(mu, 1.0 / eta) * mu))
+def internal_diffuse_reflectance(eta: float, alpha: float) -> float:
+    """F_dr: the rough coating's reflectance for diffuse light from inside, 2 <E_spec(mu, 1/eta) mu> over
+    the table's cosines (as Mitsuba computes it; the rough interface reflects less than a smooth one)."""
+    mus, albedo = _coating_albedo(float(alpha), 1.0 / float(eta))
+    return float(2.0 * np.mean(albedo * mus))
 
 
 def roughplastic_cos(n, wo, wi, albedo, alpha: float, eta: float):
@@ -89,5 +102,5 @@ def roughplastic_cos(n, wo, wi, albedo, alpha: float, eta: float):
     v_h = np.clip(np.einsum("ij,ij->i", wo, h), 0.0, 1.0)
     spec = np.where((n_l > 0) & (n_v > 0), _coating(n_l, n_v, n_h, v_h, alpha, eta), 0.0)
     t = transmittance(n_l, alpha, eta) * transmittance(n_v, alpha, eta)
-    base = albedo / (1.0 - internal_diffuse_reflectance(eta)) * (t * n_l / (np.pi * eta * eta))[:, None]
+    base = albedo / (1.0 - internal_diffuse_reflectance(eta, alpha)) * (t * n_l / (np.pi * eta * eta))[:, None]
     return spec[:, None] + base
