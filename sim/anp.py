@@ -79,13 +79,7 @@ def gradient(model, x) -> np.ndarray:
 
 def volume_hessians(model, F, h: float = 1e-30) -> np.ndarray:
     """(m, 12, 12) d2v_t/dx2 = V_t B^T d(cof F)/dF B, the derivative of cof F by complex step."""
-    m = F.shape[0]
-    T = np.empty((m, 9, 9))
-    Fc = F.astype(np.complex128)
-    for col in range(9):
-        step = np.zeros((3, 3), np.complex128)
-        step.flat[col] = 1j * h
-        T[:, :, col] = constitutive.cofactor(Fc + step).reshape(m, 9).imag / h
+    T = constitutive.complex_step_jacobian(constitutive.cofactor, F, h)
     B = constitutive.dF_dx(model.Dm_inv)
     return model.volume[:, None, None] * np.matmul(np.matmul(B.transpose(0, 2, 1), T), B)
 

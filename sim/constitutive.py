@@ -113,13 +113,18 @@ def tangent(name: str, F, mu, lam, eta=None, a0=None, h: float = 1e-30, volumetr
     """dP/dF as (m, 9, 9) (row = P_ij, column = F_kl, row-major), by complex step."""
     if name == "valanis_landel":
         return vl.tangent(F)
+    return complex_step_jacobian(lambda G: first_piola(name, G, mu, lam, eta, a0, volumetric), F, h)
+
+
+def complex_step_jacobian(fn, F, h: float = 1e-30):
+    """d fn(F) / dF as (m, 9, 9) for a (m, 3, 3) -> (m, 3, 3) map analytic in F (complex step)."""
     m = F.shape[0]
     out = np.empty((m, 9, 9))
     Fc = F.astype(np.complex128)
     for col in range(9):
         step = np.zeros((3, 3), np.complex128)
         step.flat[col] = 1j * h
-        out[:, :, col] = first_piola(name, Fc + step, mu, lam, eta, a0, volumetric).reshape(m, 9).imag / h
+        out[:, :, col] = fn(Fc + step).reshape(m, 9).imag / h
     return out
 
 

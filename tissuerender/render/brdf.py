@@ -31,6 +31,14 @@ def schlick_F(v_h: np.ndarray, f0: np.ndarray) -> np.ndarray:
     return f0 + (1.0 - f0) * (1.0 - v_h) ** 5
 
 
+def angle_cosines(n, wo, wi):
+    """(n.wi, n.wo, n.h, wo.h) clamped to [0, 1], h the half-vector, for (k, 3) unit vectors."""
+    h = wo + wi
+    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+    return (np.clip(np.einsum("ij,ij->i", n, wi), 0.0, 1.0), np.clip(np.einsum("ij,ij->i", n, wo), 0.0, 1.0),
+            np.clip(np.einsum("ij,ij->i", n, h), 0.0, 1.0), np.clip(np.einsum("ij,ij->i", wo, h), 0.0, 1.0))
+
+
 def reflectance_cos(n, wo, wi, albedo, alpha, f0, sss=None):
     """BRDF times cosine, ``f(wi, wo) (n . wi)``, for k shading points.
 
@@ -40,12 +48,7 @@ def reflectance_cos(n, wo, wi, albedo, alpha, f0, sss=None):
     no finite BRDF value).
     """
     alpha = np.maximum(alpha, 1e-3)
-    h = wo + wi
-    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
-    n_l = np.clip(np.einsum("ij,ij->i", n, wi), 0.0, 1.0)
-    n_v = np.clip(np.einsum("ij,ij->i", n, wo), 0.0, 1.0)
-    n_h = np.clip(np.einsum("ij,ij->i", n, h), 0.0, 1.0)
-    v_h = np.clip(np.einsum("ij,ij->i", wo, h), 0.0, 1.0)
+    n_l, n_v, n_h, v_h = angle_cosines(n, wo, wi)
     F = schlick_F(v_h, f0)
     spec = ggx_D(n_h, alpha) * smith_visibility(n_v, n_l, alpha) * F
     transmission = (28.0 / 23.0) * (1.0 - f0) * (1.0 - (1.0 - 0.5 * n_l) ** 5) * (1.0 - (1.0 - 0.5 * n_v) ** 5)
@@ -87,12 +90,7 @@ def layered_reflectance_cos(n, wo, wi, base_f_cos, coat_alpha, coat_ior, coat_th
     """
     coat_alpha = np.maximum(coat_alpha, 1e-3)
     granular_alpha = np.maximum(granular_alpha, 1e-3)
-    h = wo + wi
-    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
-    n_l = np.clip(np.einsum("ij,ij->i", n, wi), 0.0, 1.0)
-    n_v = np.clip(np.einsum("ij,ij->i", n, wo), 0.0, 1.0)
-    n_h = np.clip(np.einsum("ij,ij->i", n, h), 0.0, 1.0)
-    v_h = np.clip(np.einsum("ij,ij->i", wo, h), 0.0, 1.0)
+    n_l, n_v, n_h, v_h = angle_cosines(n, wo, wi)
     spec_coat = ggx_D(n_h, coat_alpha) * smith_visibility(n_v, n_l, coat_alpha) * dielectric_F(v_h, coat_ior) * n_l
     spec_gran = ggx_D(n_h, granular_alpha) * smith_visibility(n_v, n_l, granular_alpha) * n_l
     t_in = 1.0 - dielectric_F(n_l, coat_ior)

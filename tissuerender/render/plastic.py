@@ -19,7 +19,7 @@ import functools
 
 import numpy as np
 
-from tissuerender.render.brdf import ggx_D
+from tissuerender.render.brdf import angle_cosines, ggx_D
 
 
 def fresnel(cos_i: np.ndarray, eta: float) -> np.ndarray:
@@ -94,12 +94,7 @@ def internal_diffuse_reflectance(eta: float, alpha: float) -> float:
 def roughplastic_cos(n, wo, wi, albedo, alpha: float, eta: float):
     """f(wi, wo) (n . wi) for k points of one rough-plastic material (albedo (k, 3))."""
     alpha = max(float(alpha), 1e-3)
-    h = wo + wi
-    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
-    n_l = np.clip(np.einsum("ij,ij->i", n, wi), 0.0, 1.0)
-    n_v = np.clip(np.einsum("ij,ij->i", n, wo), 0.0, 1.0)
-    n_h = np.clip(np.einsum("ij,ij->i", n, h), 0.0, 1.0)
-    v_h = np.clip(np.einsum("ij,ij->i", wo, h), 0.0, 1.0)
+    n_l, n_v, n_h, v_h = angle_cosines(n, wo, wi)
     spec = np.where((n_l > 0) & (n_v > 0), _coating(n_l, n_v, n_h, v_h, alpha, eta), 0.0)
     t = transmittance(n_l, alpha, eta) * transmittance(n_v, alpha, eta)
     base = albedo / (1.0 - internal_diffuse_reflectance(eta, alpha)) * (t * n_l / (np.pi * eta * eta))[:, None]
