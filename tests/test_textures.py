@@ -1,0 +1,82 @@
+"""Procedural organic textures (Qian 6.2.1-6.2.2): determinism, blend modes, multi-scale structure,
+palette extraction, normal maps and per-layer bakes."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from materials.textures import (FIBRES, MOTTLE, Level, Quadtree, apply_palette, bake_layer, blend,
+                                extract_palette, normal_map, quadtree)
+
+
+def test_same_seed_same_texture_other_seed_other_texture():
+    a = quadtree(64, MOTTLE, seed=3)
+    assert np.array_equal(a, quadtree(64, MOTTLE, seed=3))
+    b = quadtree(64, MOTTLE, seed=4)
+    assert np.abs(a - b).mean() > 0.02
+    assert a.min() >= 0.0 and a.max() <= 1.0
+
+
+@pytest.mark.parametrize("mode, expected", [
+    ("normal", 0.8), ("multiply", 0.4 * 0.8), ("screen", 1 - 0.6 * 0.2), ("add", 1.0), ("max", 0.8),
+    ("overlay", 2 * 0.4 * 0.8),
+])
+def test_blend_modes_at_full_and_half_coverage(mode, expected):
+    base, layer = np.array([0.4]), np.array([0.8])
+    assert blend(base, layer, np.array([1.0]), mode)[0] == pytest.approx(expected)
+    assert blend(base, layer, np.array([0.5]), mode)[0] == pytest.approx(0.5 * 0.4 + 0.5 * expected)
+    with pytest.raises(ValueError, match="unknown blend mode"):
+        blend(base, layer, np.array([1.0]), "dodge")
+
+
+def test_every_level_adds_structure_at_its_own_scale():
+    # one level at a time: the texture's power moves to finer wavelengths as the level deepens
+    def peak_frequency(level):
+        tex = quadtree(128, Quadtree(levels=(Level(opacity=1.0, opacity_jitter=0.0),), start_level=level), seed=1)
+        power = np.abs(np.fft.rfft2(tex - tex.mean())) ** 2
+        fy = np.abs(np.fft.fftfreq(128))[:, None] * 128
+        fx = np.fft.rfftfreq(128)[None, :] * 128
+        f = np.hypot(fx, fy)
+        return float((power * f).sum() / power.sum())
+
+    freqs = [peak_frequency(level) for level in (1, 2, 3, 4)]
+    assert all(b > 1.5 * a for a, b in zip(freqs, freqs[1:]))
+
+
+def test_fibre_stamps_are_anisotropic():
+    tex = quadtree(128, FIBRES, seed=2)
+    gx = np.abs(np.diff(tex, axis=1)).mean()
+    gy = np.abs(np.diff(tex, axis=0)).mean()
+    assert max(gx, gy) / min(gx, gy) > 1.3  # elongated stamps with small rotation: a dominant direction
+
+
+def test_palette_extraction_recovers_the_reference_colours():
+    colours = np.array([[0.8, 0.3, 0.3], [0.2, 0.05, 0.05], [0.9, 0.7, 0.6]])
+    rng = np.random.default_rng(0)
+    image = colours[rng.integers(0, 3, size=(60, 60))] + rng.normal(0, 0.01, (60, 60, 3))
+    palette = extract_palette(image, k=3, seed=1)
+    expected = colours[np.argsort(colours @ [0.2126, 0.7152, 0.0722])]
+    assert np.allclose(palette, expected, atol=0.01)
+    assert np.allclose(apply_palette(np.array([0.0, 1.0]), palette), palette[[0, -1]])
+
+
+def test_normal_map_of_a_ramp_is_the_tilted_plane():
+    size = 32
+    ramp = np.tile(np.arange(size) / size, (size, 1)) * 0.25  # h = x / 4 (not tiling at the seam)
+    n = normal_map(ramp, strength=1.0)[:, 1:-1]
+    assert np.allclose(n[..., 0], -0.25 / np.sqrt(1 + 0.0625), atol=1e-9)
+    assert np.allclose(n[..., 2], 1 / np.sqrt(1 + 0.0625), atol=1e-9)
+
+
+def test_bake_layer_gives_consistent_maps():
+    palette = np.array([[0.3, 0.05, 0.05], [0.7, 0.3, 0.3], [0.9, 0.6, 0.55]])
+    bake = bake_layer(64, palette, roughness=0.3, seed=5, vessel_density=1.5)
+    assert bake.albedo.shape == (64, 64, 3) and bake.normal.shape == (64, 64, 3)
+    assert np.all(bake.albedo >= 0) and np.all(bake.albedo <= 1)
+    assert np.all((bake.roughness >= 0.3 * 0.7 - 1e-12) & (bake.roughness <= 0.3 * 1.3 + 1e-12))
+    assert np.allclose(np.linalg.norm(bake.normal, axis=-1), 1.0)
+    assert 0.01 < bake.vessels.mean() < 0.9
+    # vessels darken the albedo where they are
+    dark = bake.vessels > 0.5
+    plain = bake_layer(64, palette, roughness=0.3, seed=5, vessel_density=0.0)
+    assert (bake.albedo[dark] < plain.albedo[dark] - 1e-6).all()
