@@ -24,6 +24,7 @@ term C exp(-sigma T) of Qian eq. 6.8.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 
@@ -53,6 +54,15 @@ class MucosaLayers:
     connective_thickness: float = 400e-6
     connective_absorption: tuple[float, float, float] = (250.0, 900.0, 1300.0)
     submucosa_colour: tuple[float, float, float] = (0.45, 0.10, 0.09)
+    texture_seed: int | None = None  # bake a procedural mucosa texture (materials.textures) when set
+    texture_period: float = 0.03  # size of one texture tile in UV units (metres on procedural bodies) 
+    texture_size: int = 256
+    vessel_density: float = 1.2
+
+    def baked_albedo(self):
+        """(size, size, 3) base albedo texture: the connective-tissue mottle between the submucosa and
+        connective colours, darkened by vessels; its mean stays near ``base_albedo``."""
+        return _bake(self)
 
     @property
     def base_albedo(self) -> tuple[float, float, float]:
@@ -65,6 +75,21 @@ class MucosaLayers:
         return tuple(out)
 
 
+@functools.lru_cache(maxsize=8)
+def _bake(layers: MucosaLayers):
+    import numpy as np
+
+    from materials.textures import bake_layer
+
+    base = np.asarray(layers.base_albedo)
+    palette = np.stack([np.asarray(layers.submucosa_colour), base, np.asarray(layers.connective_colour)])
+    baked = bake_layer(layers.texture_size, palette, 0.3, layers.texture_seed, vessel_density=layers.vessel_density)
+    albedo = baked.albedo * (base / np.maximum(baked.albedo.reshape(-1, 3).mean(axis=0), 1e-6))
+    albedo = np.clip(albedo, 0.0, 1.0)
+    albedo.setflags(write=False)
+    return albedo
+
+
 # Colon mucosa layers. Mucus: mostly water, n = 1.33–1.35 (Hale & Querry 1973 for water; mucins add
 # little), adherent gel 100–800 um thick in the colon (Atuma et al., Am. J. Physiol. 280 (2001) G922),
 # nearly transparent in the visible (water mu_a < 0.01/mm; a little scattering from mucins: a few /m
@@ -72,7 +97,7 @@ class MucosaLayers:
 # blood-rich submucosa [Jacques13]; layer thickness ~0.3–0.5 mm for the colonic mucosa (histology
 # texts, e.g. Ross & Pawlina). The coat roughness and granular weight are design choices (wet, glossy
 # highlights; a faint broad sheen from the granular layer).
-COLON_LAYERS = MucosaLayers()
+COLON_LAYERS = MucosaLayers(texture_seed=11)
 
 
 @dataclass(frozen=True)

@@ -163,3 +163,17 @@ def bake_layer(size: int, palette: np.ndarray, roughness: float, seed: int, patt
         albedo = albedo * (1.0 - 0.6 * vessels[..., None])  # haemoglobin absorbs: vessels read darker
     rough = np.clip(roughness * (0.7 + 0.6 * values), 0.01, 1.0)
     return LayerBake(albedo=albedo, roughness=rough, height=values, normal=normal_map(values, bump), vessels=vessels)
+
+
+def sample_bilinear(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear lookup (wrapping: the textures tile) of a (H, W, C) texture at (k, 2) UVs."""
+    h, w = texture.shape[:2]
+    x = np.mod(uv[:, 0], 1.0) * w - 0.5
+    y = np.mod(uv[:, 1], 1.0) * h - 0.5
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    tx, ty = (x - x0)[:, None], (y - y0)[:, None]
+    x0, y0 = x0 % w, y0 % h
+    x1, y1 = (x0 + 1) % w, (y0 + 1) % h
+    top = texture[y0, x0] * (1 - tx) + texture[y0, x1] * tx
+    bottom = texture[y1, x0] * (1 - tx) + texture[y1, x1] * tx
+    return top * (1 - ty) + bottom * ty

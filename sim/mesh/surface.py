@@ -28,23 +28,28 @@ def vertex_normals(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return n / np.where(length > 0.0, length, 1.0)
 
 
-def cylindrical_uv(points: np.ndarray) -> np.ndarray:
-    """UVs by cylindrical projection about the vertical (z) axis through the bounding-box centre:
-    ``u = angle / 2 pi``, ``v = (z - z_min) / (z_max - z_min)``."""
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    c = 0.5 * (lo + hi)
-    u = (np.arctan2(points[:, 1] - c[1], points[:, 0] - c[0]) / (2.0 * np.pi)) + 0.5
-    v = (points[:, 2] - lo[2]) / max(hi[2] - lo[2], 1e-12)
-    return np.stack([u, v], axis=1)
+def box_uv(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """UVs in metres by box projection: each vertex is projected along the axis its normal is closest
+    to (top faces get (x, y), side faces (y, z) or (x, z)), so procedural textures keep their physical
+    size on every face without the poles of a cylindrical unwrap. Seams sit where the dominant axis
+    changes."""
+    axis = np.argmax(np.abs(normals), axis=1)
+    uv = np.empty((points.shape[0], 2))
+    for a, (i, j) in enumerate(((1, 2), (0, 2), (0, 1))):
+        sel = axis == a
+        uv[sel] = points[sel][:, [i, j]]
+    return uv
 
 
 def boundary_surface(mesh: TetMesh) -> SurfaceMesh:
-    """The closed outer surface of a tet mesh, with normals, UVs and ``vertex_map`` into the mesh nodes."""
+    """The closed outer surface of a tet mesh, with normals, box-projected UVs in metres (``box_uv``)
+    and ``vertex_map`` into the mesh nodes."""
     faces = boundary_faces(mesh.tets)
     used, local = np.unique(faces, return_inverse=True)
     triangles = local.reshape(-1, 3)
     points = mesh.points[used]
-    return SurfaceMesh(points, triangles, normals=vertex_normals(points, triangles), uv=cylindrical_uv(points),
+    normals = vertex_normals(points, triangles)
+    return SurfaceMesh(points, triangles, normals=normals, uv=box_uv(points, normals),
                        source=mesh.source, vertex_map=used.astype(np.int64))
 
 

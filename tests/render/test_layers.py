@@ -99,3 +99,21 @@ def test_colon_mucosa_preset_has_the_stack_and_its_base_colour():
     assert optics.layers is not None
     base = np.array(optics.diffuse_albedo)
     assert np.all(base > 0) and np.all(base < 1) and base[0] > base[1] > 0  # pink-red
+
+
+def test_colon_mucosa_texture_varies_across_the_surface_and_keeps_its_mean_colour():
+    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+
+    pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
+    uv = pts[:, :2] * 1.0  # metres, like the box projection of procedural bodies
+    slab = RenderObject(points=pts, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=uv,
+                        material="colon_mucosa")
+    cam = Camera(position=(0.0, 0.0, 0.08), look_at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg=60.0,
+                 near=0.01, far=1.0, width=64, height=64)
+    out = render_frame([slab], cam, AreaLight(samples=1), RenderSettings(light_samples=1))
+    albedo = out.gbuffer["albedo"]
+    base = np.array(get_preset("colon_mucosa").optics.diffuse_albedo)
+    assert albedo.std(axis=0).min() > 0.02  # mottle and vessels: not a flat colour
+    assert np.allclose(albedo.mean(axis=0), base, rtol=0.15)  # but the preset's colour on average
+    again = render_frame([slab], cam, AreaLight(samples=1), RenderSettings(light_samples=1))
+    assert np.array_equal(out.hdr, again.hdr)  # deterministic

@@ -194,7 +194,7 @@ def irradiance(pos: np.ndarray, n: np.ndarray, light: AreaLight, camera: Camera,
 
 
 def _merge(objects):
-    pts, tris, nrm, vel, tri_mat, names = [], [], [], [], [], []
+    pts, tris, nrm, vel, tri_mat, names, uvs = [], [], [], [], [], [], []
     offset = 0
     for k, obj in enumerate(objects):
         p = np.asarray(obj.points, float)
@@ -208,21 +208,23 @@ def _merge(objects):
         tris.append(t + offset)
         nrm.append(np.asarray(n, float))
         vel.append(np.zeros_like(p) if obj.velocity is None else np.asarray(obj.velocity, float))
+        uvs.append(np.zeros((p.shape[0], 2)) if obj.uv is None else np.asarray(obj.uv, float).reshape(-1, 2))
         tri_mat.append(np.full(t.shape[0], k, np.int64))
         names.append(obj.material)
         offset += p.shape[0]
     if not pts:
         z = np.zeros((0, 3))
-        return z, np.zeros((0, 3), np.int64), z, z, np.zeros(0, np.int64), names
-    return (np.concatenate(pts), np.concatenate(tris), np.concatenate(nrm), np.concatenate(vel),
-            np.concatenate(tri_mat), names)
+        return z, np.zeros((0, 3), np.int64), z, np.zeros((0, 5)), np.zeros(0, np.int64), names
+    # velocity and UV travel together as one linearly interpolated vertex attribute (n, 5)
+    attributes = np.concatenate([np.concatenate(vel), np.concatenate(uvs)], axis=1)
+    return np.concatenate(pts), np.concatenate(tris), np.concatenate(nrm), attributes, np.concatenate(tri_mat), names
 
 
 def clip_near(P, N, V, T, tri_mat, camera: Camera):
     """Split triangles crossing the near plane so the part in front of it is still drawn.
 
-    New vertices lie on the crossing edges at view depth ``near``; positions, normals and velocities
-    are linear along an edge, so interpolating them there is exact. Triangles wholly behind the near
+    New vertices lie on the crossing edges at view depth ``near``; positions, normals and the vertex
+    attributes ``V`` (velocity, UV) are linear along an edge, so interpolating them there is exact. Triangles wholly behind the near
     plane are dropped.
     """
     _, _, f = camera_basis(camera.position, camera.look_at, camera.up)
@@ -260,6 +262,22 @@ def clip_near(P, N, V, T, tri_mat, camera: Camera):
     T = np.concatenate([T[keep], np.asarray(new_tris, np.int64)])
     tri_mat = np.concatenate([tri_mat[keep], np.asarray(new_mat, np.int64)])
     return np.asarray(P), np.asarray(N), np.asarray(V), T, tri_mat
+
+
+def textured_albedo(optics, mat, uv, albedo):
+    """Replace the base albedo of layered materials that have a texture by their baked mucosa texture
+    (``materials.textures``), sampled bilinearly at the pixels' UVs, one tile per ``texture_period``."""
+    from materials.textures import sample_bilinear
+
+    out = albedo.copy()
+    for mid, o in enumerate(optics):
+        layers = o.layers
+        if layers is None or layers.texture_seed is None:
+            continue
+        sel = mat == mid
+        if sel.any():
+            out[sel] = sample_bilinear(layers.baked_albedo(), uv[sel] / layers.texture_period)
+    return out
 
 
 def _layer_arrays(optics, mat):
@@ -312,7 +330,12 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         f0 = np.array([o.f0 for o in optics], float)[mat] if optics else np.zeros(0)
         gbuffer.update(depth=depth, position=pos, normal=n, material_id=mat, albedo=albedo, roughness=alpha)
         if settings.motion:
-            gbuffer["velocity"] = np.einsum("kc,kcd->kd", b, V[corner])
+            gbuffer["velocity"] = np.einsum("kc,kcd->kd", b, V[corner][:, :, :3])
+        if any(o.layers is not None and o.layers.texture_seed is not None for o in optics):
+            uv = np.einsum("kc,kcd->kd", b, V[corner][:, :, 3:])
+            gbuffer["uv"] = uv
+            albedo = textured_albedo(optics, mat, uv, albedo)
+            gbuffer["albedo"] = albedo
     bvh = None
     if settings.shadows or settings.sss or settings.ao:
         with rec.run("bvh"):
