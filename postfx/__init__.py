@@ -1,9 +1,11 @@
 """Post-effects of the laparoscope camera (Qian §6.3.3): depth of field, chromatic aberration, tone
 mapping with sRGB encoding, and the circular scope mask.
 
-Default order (``DEFAULT_ORDER``): depth of field and chromatic aberration act on scene-linear HDR
-light, as the lens does; the tone map then turns light into display values, which the colour grade
-shapes (curves are edited on display values, as in a grading tool); the mask comes last so
+Default order (``DEFAULT_ORDER``): depth of field, chromatic aberration, bloom and blur act on
+scene-linear HDR light, as the lens does; sensor noise is added to the linear signal, as the sensor
+does; the tone map then turns light into display values, which the colour grade
+shapes (curves are edited on display values, as in a grading tool), then the camera's sharpening; the
+mask comes last so
 its black surround stays black and its soft edge has the same profile at every exposure. Qian's
 profiles put CA with the tone map and the mask last; we keep the mask last and move the lens
 effects before the tone map, where they are physical.
@@ -20,7 +22,8 @@ import numpy as np
 from postfx import effects
 from postfx.params import EFFECTS, EffectParams
 
-DEFAULT_ORDER = ["depth_of_field", "chromatic_aberration", "tonemap", "color_grade", "laparoscope_mask"]
+DEFAULT_ORDER = ["depth_of_field", "chromatic_aberration", "bloom", "blur", "sensor_noise", "tonemap", "color_grade",
+                 "sharpen", "laparoscope_mask"]
 
 # Named camera signatures: (effect, parameters) in order.
 CAMERA_PRESETS: dict[str, list[tuple[str, dict]]] = {
@@ -32,6 +35,7 @@ CAMERA_PRESETS: dict[str, list[tuple[str, dict]]] = {
     "old_scope": [
         ("chromatic_aberration", {"strength_r": 0.008, "strength_b": -0.008}),
         ("tonemap", {"exposure": 0.3, "curve": "reinhard"}),
+        ("sensor_noise", {"shot": 0.004, "read": 0.006}),
         ("color_grade", {"lift": [0.03, 0.02, 0.0], "gain": [1.0, 0.96, 0.88], "contrast": 1.25,
                          "saturation": 0.8}),
         ("laparoscope_mask", {"radius": 0.9, "softness": 0.08, "vignette": 0.55}),
@@ -59,7 +63,8 @@ class ChainResult:
     backend_used: str = "numpy"
 
 
-def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params: EffectParams, lens: Lens) -> np.ndarray:
+def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params: EffectParams, lens: Lens,
+                 seed: int = 0) -> np.ndarray:
     if name == "depth_of_field":
         return effects.depth_of_field(img, depth, params, lens.fov_deg)
     if name == "chromatic_aberration":
@@ -70,6 +75,14 @@ def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params: EffectPa
         return effects.laparoscope_mask(img, params)
     if name == "color_grade":
         return effects.color_grade(img, params)
+    if name == "blur":
+        return effects.blur(img, params)
+    if name == "sharpen":
+        return effects.sharpen(img, params)
+    if name == "bloom":
+        return effects.bloom(img, params)
+    if name == "sensor_noise":
+        return effects.sensor_noise(img, params, seed)
     raise KeyError(f"unknown post-effect {name!r}; expected one of {', '.join(EFFECTS)}")
 
 
@@ -94,7 +107,7 @@ def apply_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens: Lens, backend: 
     seconds = {}
     for name, params in chain:
         start = time.perf_counter()
-        img = run(name, img, depth, params, lens).astype(np.float32, copy=False)
+        img = run(name, img, depth, params, lens, seed).astype(np.float32, copy=False)
         seconds[name] = time.perf_counter() - start
     return ChainResult(np.clip(img, 0.0, 1.0), seconds, used)
 

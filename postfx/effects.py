@@ -9,7 +9,8 @@ import functools
 import numpy as np
 from numba import njit, prange
 
-from postfx.params import ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask, Tonemap
+from postfx.params import (Bloom, Blur, ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask, SensorNoise,
+                           Sharpen, Tonemap)
 
 
 @njit(cache=True, parallel=True)
@@ -248,3 +249,67 @@ def _grade_kernel(img, lut, saturation, l0, l1, l2):
 def color_grade(img: np.ndarray, p: ColorGrade) -> np.ndarray:
     """Grade display values in [0, 1]: the per-channel LUT (linear interpolation), then saturation."""
     return _grade_kernel(np.ascontiguousarray(img, dtype=np.float32), grade_lut(p), float(p.saturation), *LUMA)
+
+
+def gaussian_weights(sigma: float) -> np.ndarray:
+    """Normalised 1-D Gaussian taps for offsets -R..R, R = ceil(3 sigma)."""
+    R = int(np.ceil(3.0 * sigma))
+    x = np.arange(-R, R + 1, dtype=np.float64)
+    w = np.exp(-0.5 * (x / sigma) ** 2)
+    return (w / w.sum()).astype(np.float32)
+
+
+@njit(cache=True, parallel=True)
+def _convolve_1d(img, w, horizontal):
+    """One separable pass with clamped edges: along rows (horizontal) or columns."""
+    h, wd, nc = img.shape
+    R = (w.shape[0] - 1) // 2
+    out = np.empty_like(img)
+    for j in prange(h):
+        for i in range(wd):
+            for c in range(nc):
+                acc = np.float32(0.0)
+                for k in range(w.shape[0]):
+                    if horizontal:
+                        acc += w[k] * img[j, min(max(i + k - R, 0), wd - 1), c]
+                    else:
+                        acc += w[k] * img[min(max(j + k - R, 0), h - 1), i, c]
+                out[j, i, c] = acc
+    return out
+
+
+def gaussian_blur(img: np.ndarray, sigma: float) -> np.ndarray:
+    """Separable Gaussian blur with clamped edges (the GLSL passes do the same taps)."""
+    w = gaussian_weights(sigma)
+    img = np.ascontiguousarray(img, dtype=np.float32)
+    return _convolve_1d(_convolve_1d(img, w, True), w, False)
+
+
+def blur(img: np.ndarray, p: Blur) -> np.ndarray:
+    return gaussian_blur(img, p.sigma_px)
+
+
+def sharpen(img: np.ndarray, p: Sharpen) -> np.ndarray:
+    return np.clip(img + np.float32(p.amount) * (img - gaussian_blur(img, p.sigma_px)), 0.0, 1.0)
+
+
+def bright_part(img: np.ndarray, threshold: float) -> np.ndarray:
+    """The part of each pixel above ``threshold`` in Rec. 709 luminance, keeping its colour."""
+    lum = img @ np.array(LUMA, np.float32)
+    scale = np.maximum(lum - np.float32(threshold), 0.0) / np.maximum(lum, np.float32(1e-12))
+    return (img * scale[..., None]).astype(np.float32)
+
+
+def bloom(img: np.ndarray, p: Bloom) -> np.ndarray:
+    return img + np.float32(p.intensity) * gaussian_blur(bright_part(img, p.threshold), p.sigma_px)
+
+
+def noise_field(shape, seed: int) -> np.ndarray:
+    """Standard normal float32 field for the frame's seed (shared by both backends)."""
+    return np.random.default_rng(np.random.SeedSequence([seed, 0x5E45])).standard_normal(shape).astype(np.float32)
+
+
+def sensor_noise(img: np.ndarray, p: SensorNoise, seed: int) -> np.ndarray:
+    z = noise_field(img.shape, seed)
+    sd = np.sqrt(np.maximum(img, 0.0) * np.float32(p.shot) + np.float32(p.read) ** 2)
+    return np.maximum(img + sd * z, 0.0)

@@ -98,6 +98,44 @@ void main() {
   gl_FragData[0] = vec4(clamp(vec3(l) + saturation * (y - vec3(l)), 0.0, 1.0), 1.0);
 }
 """,
+    # one direction of the separable Gaussian (weights exp(-x^2 / 2 sigma^2) normalised, edges clamped)
+    "gauss_1d": _HEADER + "uniform sampler2D img;\nuniform int R;\nuniform float sigma;\nuniform vec2 dir;\n" + """
+void main() {
+""" + _PIXEL + """  vec3 acc = vec3(0.0);
+  float wsum = 0.0;
+  for (int k = -R; k <= R; ++k) {
+    float w = exp(-0.5 * (float(k) / sigma) * (float(k) / sigma));
+    ivec2 q = clamp(p + ivec2(dir) * k, ivec2(0), size - 1);
+    acc += w * texelFetch(img, q, 0).rgb;
+    wsum += w;
+  }
+  gl_FragData[0] = vec4(acc / wsum, 1.0);
+}
+""",
+    "bright": _HEADER + "uniform sampler2D img;\nuniform float threshold;\nuniform vec3 luma;\n" + """
+void main() {
+""" + _PIXEL + """  vec3 x = texelFetch(img, p, 0).rgb;
+  float l = dot(luma, x);
+  gl_FragData[0] = vec4(x * max(l - threshold, 0.0) / max(l, 1e-12), 1.0);
+}
+""",
+    # a + k (a - b) clipped (sharpen, k = amount) or a + k b (bloom, mode 1)
+    "combine": _HEADER + "uniform sampler2D a;\nuniform sampler2D b;\nuniform float k;\nuniform int mode;\n" + """
+void main() {
+  ivec2 size = textureSize(a, 0);
+  ivec2 p = ivec2(texCoord * vec2(size));
+  vec3 x = texelFetch(a, p, 0).rgb, y = texelFetch(b, p, 0).rgb;
+  vec3 r = mode == 0 ? clamp(x + k * (x - y), 0.0, 1.0) : x + k * y;
+  gl_FragData[0] = vec4(r, 1.0);
+}
+""",
+    "noise": _HEADER + "uniform sampler2D img;\nuniform sampler2D z;\nuniform float shot;\nuniform float rd;\n" + """
+void main() {
+""" + _PIXEL + """  vec3 x = texelFetch(img, p, 0).rgb;
+  vec3 sd = sqrt(max(x, 0.0) * shot + rd * rd);
+  gl_FragData[0] = vec4(max(x + sd * texelFetch(z, p, 0).rgb, 0.0), 1.0);
+}
+""",
     "depth_of_field": _HEADER + "uniform sampler2D src;\nuniform int R;\nuniform float r2max;\n" + """
 // src = (r w, g w, b w, reach^2) with w = 1 / (pi max(reach^2 - 1/4, 1/4)): one fetch per tap. It is
 // padded by R texels of reach -1 on every side (never inside a disc), so taps need no bounds test.
@@ -228,12 +266,31 @@ class Context:
         return vtk_to_numpy(out).reshape(height, width, 4)[..., :3].copy()
 
 
-def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params, lens) -> np.ndarray:
+def _gaussian(ctx, img, sigma):
+    h, w, _ = img.shape
+    R = int(math.ceil(3.0 * sigma))
+    horizontal = ctx.run("gauss_1d", {"img": img}, {"R": R, "sigma": float(sigma), "dir": (1.0, 0.0)}, w, h)
+    return ctx.run("gauss_1d", {"img": horizontal}, {"R": R, "sigma": float(sigma), "dir": (0.0, 1.0)}, w, h)
+
+
+def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params, lens, seed: int = 0) -> np.ndarray:
     """One effect on the GPU path; same signature and meaning as :func:`postfx.apply_effect`."""
     from postfx import effects
 
     ctx = Context.get()
     h, w, _ = img.shape
+    if name == "blur":
+        return _gaussian(ctx, img, params.sigma_px)
+    if name == "sharpen":
+        return ctx.run("combine", {"a": img, "b": _gaussian(ctx, img, params.sigma_px)},
+                       {"k": float(params.amount), "mode": 0}, w, h)
+    if name == "bloom":
+        bright = ctx.run("bright", {"img": img}, {"threshold": float(params.threshold), "luma": effects.LUMA}, w, h)
+        return ctx.run("combine", {"a": img, "b": _gaussian(ctx, bright, params.sigma_px)},
+                       {"k": float(params.intensity), "mode": 1}, w, h)
+    if name == "sensor_noise":
+        return ctx.run("noise", {"img": img, "z": effects.noise_field(img.shape, seed)},
+                       {"shot": float(params.shot), "rd": float(params.read)}, w, h)
     if name == "chromatic_aberration":
         scale = [1.0 / (1.0 + k) if k > -1.0 else 1e6 for k in (params.strength_r, params.strength_g, params.strength_b)]
         return ctx.run(name, {"img": img}, {"scale": scale, "centre": (params.centre[0] * w, params.centre[1] * h)}, w, h)

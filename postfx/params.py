@@ -97,10 +97,44 @@ class ColorGrade(EffectParams):
         return points
 
 
+class Blur(EffectParams):
+    """Gaussian blur of standard deviation ``sigma_px`` pixels (separable, edges clamped)."""
+
+    sigma_px: Annotated[float, Field(gt=0.0, le=16.0)] = 1.0
+
+
+class Sharpen(EffectParams):
+    """Unsharp mask on display values: ``x + amount (x - blur_sigma(x))``, clipped to [0, 1]."""
+
+    amount: Annotated[float, Field(ge=0.0, le=5.0)] = 0.5
+    sigma_px: Annotated[float, Field(gt=0.0, le=8.0)] = 1.0
+
+
+class Bloom(EffectParams):
+    """Glow around HDR highlights: the part of each pixel above ``threshold`` (in luminance, scene-linear)
+    is blurred by ``sigma_px`` and added back times ``intensity``."""
+
+    threshold: Annotated[float, Field(ge=0.0, le=1e6)] = 1.0
+    intensity: Annotated[float, Field(ge=0.0, le=10.0)] = 0.3
+    sigma_px: Annotated[float, Field(gt=0.0, le=16.0)] = 6.0
+
+
+class SensorNoise(EffectParams):
+    """Seeded sensor noise on linear values: Gaussian with variance ``shot x + read^2`` (shot noise
+    proportional to the signal, read noise constant), deterministic for the frame's seed."""
+
+    shot: Annotated[float, Field(ge=0.0, le=1.0)] = 0.002
+    read: Annotated[float, Field(ge=0.0, le=1.0)] = 0.003
+
+
 EFFECTS: dict[str, type[EffectParams]] = {
     "depth_of_field": DepthOfField,
     "chromatic_aberration": ChromaticAberration,
     "tonemap": Tonemap,
     "color_grade": ColorGrade,
+    "blur": Blur,
+    "sharpen": Sharpen,
+    "bloom": Bloom,
+    "sensor_noise": SensorNoise,
     "laparoscope_mask": LaparoscopeMask,
 }

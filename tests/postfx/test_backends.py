@@ -6,7 +6,8 @@ import pytest
 
 import postfx
 from postfx import osmesa
-from postfx.params import EFFECTS, ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask, Tonemap
+from postfx.params import (EFFECTS, Bloom, Blur, ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask,
+                           SensorNoise, Sharpen, Tonemap)
 
 needs_osmesa = pytest.mark.skipif(not osmesa.library_available(),
                                   reason="libOSMesa missing: install the Debian package libosmesa6")
@@ -17,6 +18,10 @@ CASES = {
     "chromatic_aberration": ChromaticAberration(strength_r=0.02, strength_b=-0.015, centre=[0.45, 0.55]),
     "depth_of_field": DepthOfField(focus_distance=0.1, aperture=0.004, max_radius_px=10.0),
     "tonemap": Tonemap(exposure=0.5, curve="aces"),
+    "blur": Blur(sigma_px=2.5),
+    "sharpen": Sharpen(amount=0.8, sigma_px=1.5),
+    "bloom": Bloom(threshold=2.0, intensity=0.5, sigma_px=4.0),
+    "sensor_noise": SensorNoise(shot=0.01, read=0.02),
     "color_grade": ColorGrade(lift=[0.02, 0.0, -0.01], gamma=[1.1, 1.0, 0.9], gain=[1.0, 0.95, 0.9], contrast=1.3,
                               curve=[[0.0, 0.0], [0.3, 0.22], [0.7, 0.8], [1.0, 1.0]],
                               curve_g=[[0.0, 0.02], [1.0, 0.98]], saturation=0.8),
