@@ -149,6 +149,7 @@ def light_for(scene: Scene):
     lt = scene.light
     return AreaLight(size=tuple(lt.size), radiance=tuple(lt.radiance), attach=lt.attach,
                      position=lt.position, normal=lt.normal, up=lt.up, offset=tuple(lt.offset),
+                     importance=tuple((tuple(k.centre), k.radius, k.multiplier) for k in lt.importance),
                      sampling=lt.sampling, samples=lt.samples)
 
 

@@ -218,6 +218,15 @@ class Camera(Strict):
         return self
 
 
+class ImportanceStroke(Strict):
+    """A painted light-sampling region (Qian Fig. 6.15): shading points within ``radius`` of ``centre``
+    get up to ``multiplier`` times the light samples."""
+
+    centre: Vec3
+    radius: Annotated[float, Field(gt=0.0, le=10.0)]
+    multiplier: Annotated[float, Field(ge=1.0, le=64.0)]
+
+
 class Light(Strict):
     attach: Literal["camera", "world"] = "camera"
     size: Vec2Pos = [0.01, 0.01]
@@ -228,6 +237,16 @@ class Light(Strict):
     up: Vec3 = [0.0, 0.0, 1.0]
     sampling: Literal["adaptive", "uniform", "importance"] = "adaptive"
     samples: Annotated[int, Field(ge=1, le=4096)] = 16
+    importance: Annotated[list[ImportanceStroke], Field(max_length=1000)] = []
+
+    @model_validator(mode="after")
+    def _importance(self):
+        if self.sampling == "importance" and not self.importance:
+            raise ValueError("sampling = \"importance\" needs painted strokes in 'importance' "
+                             "(e.g. importance = [{ centre = [0, 0, 0], radius = 0.02, multiplier = 8 }])")
+        if self.importance and self.sampling != "importance":
+            raise ValueError("'importance' strokes are only used with sampling = \"importance\"")
+        return self
 
     @model_validator(mode="after")
     def _placement(self):
