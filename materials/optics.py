@@ -58,11 +58,16 @@ class MucosaLayers:
     texture_period: float = 0.03  # size of one texture tile in UV units (metres on procedural bodies) 
     texture_size: int = 256
     vessel_density: float = 1.2
+    bump: float = 0.004  # relief height, in texture widths (0.004 x 3 cm = 0.12 mm)
 
     def baked_albedo(self):
         """(size, size, 3) base albedo texture: the connective-tissue mottle between the submucosa and
         connective colours, darkened by vessels; its mean stays near ``base_albedo``."""
-        return _bake(self)
+        return _bake(self)[0]
+
+    def baked_normal(self):
+        """(size, size, 3) tangent-space normals of the same bake (the mucosa's fine relief)."""
+        return _bake(self)[1]
 
     @property
     def base_albedo(self) -> tuple[float, float, float]:
@@ -83,11 +88,13 @@ def _bake(layers: MucosaLayers):
 
     base = np.asarray(layers.base_albedo)
     palette = np.stack([np.asarray(layers.submucosa_colour), base, np.asarray(layers.connective_colour)])
-    baked = bake_layer(layers.texture_size, palette, 0.3, layers.texture_seed, vessel_density=layers.vessel_density)
+    baked = bake_layer(layers.texture_size, palette, 0.3, layers.texture_seed, vessel_density=layers.vessel_density,
+                       bump=layers.bump)
     albedo = baked.albedo * (base / np.maximum(baked.albedo.reshape(-1, 3).mean(axis=0), 1e-6))
     albedo = np.clip(albedo, 0.0, 1.0)
     albedo.setflags(write=False)
-    return albedo
+    baked.normal.setflags(write=False)
+    return albedo, baked.normal
 
 
 # Colon mucosa layers. Mucus: mostly water, n = 1.33–1.35 (Hale & Querry 1973 for water; mucins add

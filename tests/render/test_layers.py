@@ -117,3 +117,18 @@ def test_colon_mucosa_texture_varies_across_the_surface_and_keeps_its_mean_colou
     assert np.allclose(albedo.mean(axis=0), base, rtol=0.15)  # but the preset's colour on average
     again = render_frame([slab], cam, AreaLight(samples=1), RenderSettings(light_samples=1))
     assert np.array_equal(out.hdr, again.hdr)  # deterministic
+
+
+def test_mucosa_relief_bends_the_shading_normals_slightly():
+    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+
+    pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
+    slab = RenderObject(points=pts, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=pts[:, :2] * 1.0,
+                        material="colon_mucosa")
+    cam = Camera(position=(0.0, 0.0, 0.08), look_at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg=60.0,
+                 near=0.01, far=1.0, width=64, height=64)
+    n = render_frame([slab], cam, AreaLight(samples=1), RenderSettings(light_samples=1)).gbuffer["normal"]
+    tilt = np.degrees(np.arccos(np.clip(n[:, 2], -1, 1)))
+    assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
+    assert 0.5 < tilt.mean() < 15.0 and tilt.max() < 45.0  # a fine relief, not a flat mirror, not noise
+    assert abs(n[:, 0].mean()) < 0.05 and abs(n[:, 1].mean()) < 0.05  # no net tilt

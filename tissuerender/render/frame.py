@@ -280,20 +280,33 @@ def clip_near(P, N, V, T, tri_mat, camera: Camera):
     return np.asarray(P), np.asarray(N), np.asarray(V), T, tri_mat
 
 
-def textured_albedo(optics, mat, uv, albedo):
-    """Replace the base albedo of layered materials that have a texture by their baked mucosa texture
-    (``materials.textures``), sampled bilinearly at the pixels' UVs, one tile per ``texture_period``."""
+def textured_surface(optics, mat, uv, albedo, n):
+    """Albedo and shading normals of layered materials that have a texture, from their baked mucosa
+    texture (``materials.textures``) sampled bilinearly at the pixels' UVs, one tile per
+    ``texture_period``. The tangent-space normal map is applied in the box-projection frame (the two
+    world axes the UVs were taken along), which is the surface's tangent plane on the flat faces the
+    projection is made for."""
     from materials.textures import sample_bilinear
 
-    out = albedo.copy()
+    out_albedo, out_n = albedo.copy(), n.copy()
     for mid, o in enumerate(optics):
         layers = o.layers
         if layers is None or layers.texture_seed is None:
             continue
-        sel = mat == mid
-        if sel.any():
-            out[sel] = sample_bilinear(layers.baked_albedo(), uv[sel] / layers.texture_period)
-    return out
+        sel = np.flatnonzero(mat == mid)
+        if sel.size == 0:
+            continue
+        st = uv[sel] / layers.texture_period
+        out_albedo[sel] = sample_bilinear(layers.baked_albedo(), st)
+        tn = sample_bilinear(layers.baked_normal(), st)
+        axis = np.argmax(np.abs(n[sel]), axis=1)
+        first = np.where(axis == 0, 1, 0)  # box_uv: u along y for x-facing, else along x
+        second = np.where(axis == 2, 1, 2)  # v along y for z-facing, else along z
+        t = np.eye(3)[first]
+        b = np.eye(3)[second]
+        bent = tn[:, :1] * t + tn[:, 1:2] * b + tn[:, 2:] * n[sel]
+        out_n[sel] = bent / np.maximum(np.linalg.norm(bent, axis=1, keepdims=True), 1e-12)
+    return out_albedo, out_n
 
 
 def _layer_arrays(optics, mat):
@@ -348,8 +361,8 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         if any(o.layers is not None and o.layers.texture_seed is not None for o in optics):
             uv = np.einsum("kc,kcd->kd", b, V[corner][:, :, 3:])
             gbuffer["uv"] = uv
-            albedo = textured_albedo(optics, mat, uv, albedo)
-            gbuffer["albedo"] = albedo
+            albedo, n = textured_surface(optics, mat, uv, albedo, n)
+            gbuffer.update(albedo=albedo, normal=n)
     bvh = None
     if settings.shadows or settings.sss or settings.ao:
         with rec.run("bvh"):
