@@ -60,6 +60,8 @@ class AreaLight:
     sampling: str = "adaptive"
     samples: int = 16
     importance: tuple = ()  # ((centre, radius, multiplier), ...) painted regions for sampling = "importance"
+    reflection_cone: bool = False  # extra samples in the part of the light inside the reflection cone
+    cone_samples: int = 16
 
 
 @dataclass
@@ -162,6 +164,31 @@ def light_sample(s: int, m: np.ndarray, rotation: np.ndarray, pos: np.ndarray, c
     wi /= np.sqrt(d2)[:, None]
     cos_l = np.clip(-(wi @ ln), 0.0, None)
     return q, wi, cos_l / d2 * area / m
+
+
+def cone_angle(alpha: np.ndarray) -> np.ndarray:
+    """Half-angle of the reflection cone from the GGX lobe width: the half-vector angle where D falls
+    to a tenth of its peak, tan^2 theta_h = alpha^2 (sqrt(10) - 1), doubled for the reflected direction."""
+    return np.minimum(2.0 * np.arctan(np.maximum(alpha, 1e-3) * np.sqrt(np.sqrt(10.0) - 1.0)), np.radians(80.0))
+
+
+def cone_regions(pos, n, wo, alpha, centre, ln, eu, ev):
+    """The rectangle R' of the light (in its local coordinates, edges at -1 and 1) covering the reflection
+    cone's footprint: (lo_u, hi_u, lo_v, hi_v, valid). Splitting the light into R' and the rest and
+    sampling each with its own weight (area / samples) keeps the estimate unbiased for any R'; a good
+    R' only moves samples to where the glossy lobe is."""
+    r = 2.0 * np.einsum("ij,ij->i", n, wo)[:, None] * n - wo
+    denom = r @ ln
+    t = np.einsum("ij,j->i", centre - pos, ln) / np.where(np.abs(denom) > 1e-12, denom, np.inf)
+    hit = (denom < 0.0) & (t > 0.0) & np.isfinite(t)
+    q = pos + np.where(hit, t, 0.0)[:, None] * r
+    eu2, ev2 = float(eu @ eu), float(ev @ ev)
+    uc, vc = (q - centre) @ eu / eu2, (q - centre) @ ev / ev2
+    rho = np.where(hit, t, 0.0) * np.tan(cone_angle(alpha))
+    lo_u, hi_u = np.maximum(-1.0, uc - rho / np.sqrt(eu2)), np.minimum(1.0, uc + rho / np.sqrt(eu2))
+    lo_v, hi_v = np.maximum(-1.0, vc - rho / np.sqrt(ev2)), np.minimum(1.0, vc + rho / np.sqrt(ev2))
+    valid = hit & (hi_u > lo_u) & (hi_v > lo_v)
+    return lo_u, hi_u, lo_v, hi_v, valid
 
 
 def tangent_frames(n: np.ndarray):
@@ -394,9 +421,15 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         rng = np.random.default_rng(settings.seed)
         rotation = rng.random((pos.shape[0], 2))
         radiance = np.zeros((pos.shape[0], 3))
-        for s in range(int(m.max()) if m.size else 0):
-            act = np.flatnonzero(s < m)
-            q, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev)
+        cone = None
+        if light.reflection_cone and pos.shape[0]:
+            spec_alpha = alpha.copy()
+            if layered is not None:
+                spec_alpha[layered["mask"]] = layered["coat_alpha"][layered["mask"]]
+            cone = cone_regions(pos, n, wo, spec_alpha, centre, ln, eu, ev)
+            gbuffer["cone"] = cone[4]
+
+        def contribute(act, q, wi, weight):
             if settings.shadows:
                 with rec.run("shadow_rays"):
                     weight = weight * ~bvh.occluded(pos[act] + 2 * eps * n[act], q)
@@ -417,6 +450,32 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
                         layered["coat_thickness"][idx], layered["coat_sigma"][idx], layered["granular_weight"][idx],
                         layered["granular_alpha"][idx])
             radiance[act] += f_cos * weight[:, None]
+
+        eu2, ev2 = float(eu @ eu), float(ev @ ev)
+        for s in range(int(m.max()) if m.size else 0):
+            act = np.flatnonzero(s < m)
+            q, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev)
+            if cone is not None:
+                # uniform samples landing in R' are replaced by the cone samples below (stratification)
+                u, v = (q - centre) @ eu / eu2, (q - centre) @ ev / ev2
+                inside = (cone[4][act] & (u >= cone[0][act]) & (u < cone[1][act]) & (v >= cone[2][act])
+                          & (v < cone[3][act]))
+                weight = np.where(inside, 0.0, weight)
+            contribute(act, q, wi, weight)
+        if cone is not None:
+            act = np.flatnonzero(cone[4])
+            mc = int(light.cone_samples)
+            lo_u, hi_u, lo_v, hi_v = (c[act] for c in cone[:4])
+            area = (hi_u - lo_u) * (hi_v - lo_v) * np.sqrt(eu2 * ev2)  # of R' [m^2]
+            for s in range(mc):
+                u = lo_u + (hi_u - lo_u) * np.mod((s + 0.5) / mc + rotation[act, 0], 1.0)
+                v = lo_v + (hi_v - lo_v) * np.mod(radical_inverse(np.full(act.size, s)) + rotation[act, 1], 1.0)
+                q = centre + u[:, None] * eu + v[:, None] * ev
+                wi = q - pos[act]
+                d2 = np.maximum(np.einsum("ij,ij->i", wi, wi), 1e-12)
+                wi /= np.sqrt(d2)[:, None]
+                cos_l = np.clip(-(wi @ ln), 0.0, None)
+                contribute(act, q, wi, cos_l / d2 * area / mc)
         radiance *= np.asarray(light.radiance, float)
     ambient = np.asarray(settings.ambient, float)
     if np.any(ambient > 0.0):

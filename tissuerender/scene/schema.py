@@ -238,6 +238,8 @@ class Light(Strict):
     sampling: Literal["adaptive", "uniform", "importance"] = "adaptive"
     samples: Annotated[int, Field(ge=1, le=4096)] = 16
     importance: Annotated[list[ImportanceStroke], Field(max_length=1000)] = []
+    reflection_cone: bool = False
+    cone_samples: Annotated[int, Field(ge=1, le=4096)] = 16
 
     @model_validator(mode="after")
     def _importance(self):
