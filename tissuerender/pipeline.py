@@ -161,7 +161,8 @@ def settings_for(scene: Scene, seed: int):
     return RenderSettings(shadows=e.shadows, sss=e.sss, ao=e.ao, mucus_reflection=e.mucus_reflection,
                           light_samples=scene.light.samples, supersampling=scene.output.supersampling,
                           seed=seed, motion=e.motion, ambient=tuple(e.ambient), ao_distance=e.ao_distance,
-                          ao_samples=e.ao_samples)
+                          ao_samples=e.ao_samples, environment_up=tuple(e.environment_up),
+                          environment_down=tuple(e.environment_down), environment_axis=tuple(e.environment_axis))
 
 
 def tool_surface(tool, t: float):

@@ -275,3 +275,20 @@ def test_reflection_cone_is_unbiased_and_cuts_highlight_noise():
     # for the same 8 samples per point, putting half inside the cone lowers the highlight's error
     # (measured 7.4 against 8.6)
     assert errors["uniform 4 + cone 4"] < errors["uniform 8"]
+
+
+@pytest.mark.parametrize("deg", [20, 40, 60, 75])
+def test_floor_crossing_the_near_plane_has_no_holes(deg):
+    # regression: vertices clipping put on the near plane could land a rounding error in front of it,
+    # and the rasteriser then dropped the whole clipped triangle (a blank view at 40 degrees)
+    from tissuerender.render.frame import clip_near
+    from tissuerender.render.raster import rasterize_objects
+
+    P = np.array([[-0.2, -0.2, 0.0], [0.2, -0.2, 0.0], [0.2, 0.2, 0.0], [-0.2, 0.2, 0.0]])
+    T = np.array([[0, 1, 2], [0, 2, 3]])
+    t = np.radians(deg)
+    cam = Camera(position=(0.0, -0.1 * np.sin(t), 0.1 * np.cos(t)), look_at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0),
+                 fov_deg=10.0, near=0.01, far=1.0, width=16, height=16)
+    P2, _, _, T2, _ = clip_near(P, np.tile([0.0, 0.0, 1.0], (4, 1)), np.zeros((4, 5)), T, np.zeros(2, int), cam)
+    _, tri_id, _ = rasterize_objects(P2, T2, cam, 16, 16)
+    assert (tri_id >= 0).all()

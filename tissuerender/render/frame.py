@@ -86,6 +86,9 @@ class RenderSettings:
     seed: int = 0
     motion: bool = False
     ambient: tuple = (0.0, 0.0, 0.0)  # uniform environment radiance [W m^-2 sr^-1]
+    environment_up: tuple = (0.0, 0.0, 0.0)  # SH gradient environment for the mucus reflection
+    environment_down: tuple = (0.0, 0.0, 0.0)
+    environment_axis: tuple = (0.0, 0.0, 1.0)
     ao_distance: float = 0.02  # occlusion ray length [m]
     ao_samples: int = 8
 
@@ -358,8 +361,6 @@ def _layer_arrays(optics, mat):
 def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSettings,
                  recorder: StageRecorder | None = None) -> FrameResult:
     """Render one frame: linear HDR radiance (H, W, 3) float32, view depth (H, W) (inf = background)."""
-    if settings.mucus_reflection:
-        raise NotImplementedError("the mucus SH reflection (effects.mucus_reflection) is not implemented yet")
     rec = recorder_or_new(recorder)
     ss = int(settings.supersampling)
     W, H = int(camera.width) * ss, int(camera.height) * ss
@@ -477,6 +478,19 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
                 cos_l = np.clip(-(wi @ ln), 0.0, None)
                 contribute(act, q, wi, cos_l / d2 * area / mc)
         radiance *= np.asarray(light.radiance, float)
+    if settings.mucus_reflection and layered is not None and layered["mask"].any():
+        with rec.run("mucus_reflection"):
+            from tissuerender.render import sh
+            from tissuerender.render.brdf import dielectric_F
+
+            idx = np.flatnonzero(layered["mask"])
+            env = sh.gradient_environment(settings.environment_up, settings.environment_down,
+                                          settings.environment_axis)
+            nv = np.clip(np.einsum("ij,ij->i", n[idx], wo[idx]), 0.0, 1.0)
+            mirror = 2.0 * nv[:, None] * n[idx] - wo[idx]
+            reflected = sh.evaluate(env, mirror, layered["coat_alpha"][idx])
+            fresnel = dielectric_F(nv, layered["coat_ior"][idx])
+            radiance[idx] += fresnel[:, None] * np.maximum(reflected, 0.0)
     ambient = np.asarray(settings.ambient, float)
     if np.any(ambient > 0.0):
         # a uniform environment L_a on a Lambertian surface: int (albedo / pi) L_a cos dw = albedo L_a,

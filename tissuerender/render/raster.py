@@ -23,9 +23,11 @@ def rasterize(sx, sy, zv, tris, width, height, near, depth, tri_id, bary):
     Writes per pixel the nearest view depth, the triangle id and perspective-correct barycentrics
     (weights ``b_i / z_i`` renormalised). Triangles with a vertex in front of ``near`` are skipped.
     """
+    # vertices that clipping put on the near plane may land a rounding error in front of it
+    limit = near * (1.0 - 1e-9)
     for t in range(tris.shape[0]):
         a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
-        if zv[a] < near or zv[b] < near or zv[c] < near:
+        if zv[a] < limit or zv[b] < limit or zv[c] < limit:
             continue
         x0, y0, x1, y1, x2, y2 = sx[a], sy[a], sx[b], sy[b], sx[c], sy[c]
         area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)

@@ -280,10 +280,22 @@ class EffectsBase(Strict):
     ao_distance: Annotated[float, Field(gt=0.0, le=100.0)] = 0.02
     ao_samples: Annotated[int, Field(ge=1, le=256)] = 8
     mucus_reflection: bool = False
+    environment_up: RGB = [0.0, 0.0, 0.0]
+    environment_down: RGB = [0.0, 0.0, 0.0]
+    environment_axis: Vec3 = [0.0, 0.0, 1.0]
     motion: bool = False
     backend: Literal["auto", "numpy", "osmesa"] = "auto"
     preset: str | None = None
     order: list[str] | None = None
+
+    @model_validator(mode="after")
+    def _reflection_needs_an_environment(self):
+        if self.mucus_reflection and not any(v > 0.0 for v in self.environment_up + self.environment_down):
+            raise ValueError("mucus_reflection reflects the environment, but environment_up and environment_down "
+                             "are both [0, 0, 0]: expected a non-zero environment radiance")
+        if not any(abs(v) > 0.0 for v in self.environment_axis):
+            raise ValueError("environment_axis must not be [0, 0, 0]")
+        return self
 
     @model_validator(mode="after")
     def _ao_needs_ambient(self):
