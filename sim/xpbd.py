@@ -30,7 +30,9 @@ class XPBD:
     ``coupling`` ("coupled": both constraints of a tet in one 2x2 solve | "sequential": in turn),
     ``relaxation`` (Jacobi), ``damping`` [1/s] (velocity decay ``exp(-damping dt)``), ``strain_min`` /
     ``strain_max``: hard unilateral limits on the stretch |F a| along the rest frame's axes and the
-    fibre (Qian 4.3.4, eq. 4.21 on stretches), projected after every sweep."""
+    fibre (Qian 4.3.4, eq. 4.21 on stretches), projected after every sweep; ``material``:
+    "stable_neo_hookean" (default, the numba kernels with the model's mu and lambda) or "model" (the
+    model's own energy as C = sqrt(2 V Psi), ``sim.xpbd_energy``)."""
 
     name = "xpbd"
 
@@ -65,6 +67,14 @@ class XPBD:
         self.alpha_hyd = np.where(has_lam, 1.0 / np.where(has_lam, lam, 1.0) / volume, 1e30)
         self.gamma = np.where(has_lam, 1.0 + mu / np.where(has_lam, lam, 1.0), 1.0)
         self.w = m.inverse_mass()
+        self.energy = None
+        material = settings.get("material", "stable_neo_hookean")
+        if material not in ("stable_neo_hookean", "model"):
+            raise ValueError(f"xpbd material must be 'stable_neo_hookean' or 'model', found {material!r}")
+        if material == "model":
+            from sim.xpbd_energy import EnergyConstraints
+
+            self.energy = EnergyConstraints(m, order, self.colour_start)
         if self.strain_limits is not None:
             # limited axes: the rest frame's x, y, z and, for fibred materials, the fibre (Qian 4.3.4)
             axes = [np.broadcast_to(np.eye(3)[k], (m.n_tets, 3)) for k in range(3)]
@@ -91,6 +101,10 @@ class XPBD:
         return target
 
     def _sweeps(self, x, lam_dev, lam_hyd, inv_dt2, iterations):
+        if self.energy is not None:  # the model's own energy, C = sqrt(2 V Psi) (lam_dev holds lambda)
+            for _ in range(iterations):
+                self.energy.sweep(x, lam_dev, self.w, inv_dt2)
+            return
         args = (x, self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd, self.gamma, lam_dev, lam_hyd,
                 inv_dt2, self.mode)
         if self.solver == "gauss_seidel":

@@ -75,8 +75,9 @@ def mutated_scenes(draw):
     return data
 
 
-@settings(max_examples=400, deadline=5000, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                                     HealthCheck.too_slow])
+@settings(max_examples=400, deadline=5000, database=None,  # no replay of stale examples across schema changes
+          suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                 HealthCheck.too_slow])
 @given(data=mutated_scenes())
 def test_mutated_scene_loads_or_fails_with_status_2(data, tmp_path_factory, capsys):
     path = tmp_path_factory.mktemp("fuzz") / "mutant.toml"

@@ -103,7 +103,8 @@ def make_plan(scene: Scene) -> Plan:
             f"(supported by {', '.join(sorted(PRONY_INTEGRATORS))})") if viscous else
            ("no simulated viscoelastic material" if simulate else "no simulation"))
     fibred = simulate and any(m.fibre is not None for m in mech)
-    decide("fibre_terms", fibred and integrator in FIBRE_INTEGRATORS, "a body's material is anisotropic",
+    fibre_ok = integrator in FIBRE_INTEGRATORS or (integrator == "xpbd" and scene.simulation.xpbd.material == "model")
+    decide("fibre_terms", fibred and fibre_ok, "a body's material is anisotropic",
            (f"the {integrator} integrator has no fibre terms: the material is treated as isotropic "
             f"(supported by {', '.join(sorted(FIBRE_INTEGRATORS))})") if fibred else
            ("no simulated anisotropic material" if simulate else "no simulation"))

@@ -113,6 +113,7 @@ class ObjectSpec(Strict):
 
 class XPBDSettings(Strict):
     solver: Literal["gauss_seidel", "jacobi"] = "gauss_seidel"
+    material: Literal["stable_neo_hookean", "model"] = "stable_neo_hookean"
     coupled: bool = True
     damping: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
     relaxation: Annotated[float, Field(gt=0.0, le=2.0)] = 1.0
