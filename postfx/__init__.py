@@ -63,24 +63,17 @@ class ChainResult:
     backend_used: str = "numpy"
 
 
+# effects that need only the image and their parameters
+_IMAGE_ONLY = ("chromatic_aberration", "tonemap", "laparoscope_mask", "color_grade", "blur", "sharpen", "bloom")
+
+
 def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params: EffectParams, lens: Lens,
                  seed: int = 0) -> np.ndarray:
+    """One effect with the NumPy reference backend (``postfx.effects``)."""
+    if name in _IMAGE_ONLY:
+        return getattr(effects, name)(img, params)
     if name == "depth_of_field":
         return effects.depth_of_field(img, depth, params, lens.fov_deg)
-    if name == "chromatic_aberration":
-        return effects.chromatic_aberration(img, params)
-    if name == "tonemap":
-        return effects.tonemap(img, params)
-    if name == "laparoscope_mask":
-        return effects.laparoscope_mask(img, params)
-    if name == "color_grade":
-        return effects.color_grade(img, params)
-    if name == "blur":
-        return effects.blur(img, params)
-    if name == "sharpen":
-        return effects.sharpen(img, params)
-    if name == "bloom":
-        return effects.bloom(img, params)
     if name == "sensor_noise":
         return effects.sensor_noise(img, params, seed)
     raise KeyError(f"unknown post-effect {name!r}; expected one of {', '.join(EFFECTS)}")
