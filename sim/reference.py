@@ -21,6 +21,7 @@ from scipy.sparse.linalg import spsolve
 from sim import anp, constitutive
 from sim.integrators import SimulationDiverged
 from sim.model import Model, State
+from sim.prony import PronyHistory
 
 
 class ReferenceIntegrator:
@@ -37,6 +38,10 @@ class ReferenceIntegrator:
         if settings.get("anp", False):
             anp.check_model(model)
             model.pressure = "anp"
+        prony = model.material_params.get("prony")
+        self.prony = PronyHistory(prony, model.n_tets) if prony else None
+        if self.prony is not None and constitutive.uses_anp(model):
+            raise ValueError("reference: Prony viscoelasticity with average nodal pressure is not supported")
         m = model
         idx = np.repeat(m.tets, 3, axis=1) * 3 + np.tile(np.arange(3), 4)[None, :]  # (m, 12) dof ids
         self.rows = np.repeat(idx, 12, axis=1).ravel()
@@ -45,21 +50,77 @@ class ReferenceIntegrator:
         self.last_iterations = 0
         self.last_residual = np.inf
 
+    # -- Prony viscoelasticity (Zhang 5.29-5.32): with the incremental update of the history, the
+    # relaxed stress of this step is S^ = a S(F) - Gamma, a = 1 - sum A_i, Gamma = sum B_i gamma_i^n,
+    # which is the stress of the energy a Psi(F) - Gamma : E(F) (E the Green strain): Newton minimises it.
+    def _visco(self, h):
+        a, gamma = 1.0, np.zeros((self.model.n_tets, 3, 3))
+        for i, (alpha, tau) in enumerate(self.prony.terms):
+            a -= h * alpha / (h + tau)
+            gamma += tau / (h + tau) * self.prony.gamma[i]
+        return a, gamma
+
+    def _elastic_energy(self, x, h):
+        m = self.model
+        if self.prony is None:
+            return constitutive.elastic_energy(m, x)
+        a, gamma = self._visco(h)
+        F = constitutive.deformation_gradients(x, m.tets, m.Dm_inv)
+        E = 0.5 * (np.swapaxes(F, 1, 2) @ F - np.eye(3))
+        return a * constitutive.elastic_energy(m, x) - float(np.sum(m.volume * np.einsum("mij,mij->m", gamma, E)))
+
+    def _elastic_gradient(self, x, h):
+        m = self.model
+        if self.prony is None:
+            return constitutive.elastic_gradient(m, x)
+        a, gamma = self._visco(h)
+        F = constitutive.deformation_gradients(x, m.tets, m.Dm_inv)
+        G = m.volume[:, None, None] * (F @ gamma) @ np.swapaxes(m.Dm_inv, 1, 2)
+        g = a * constitutive.elastic_gradient(m, x)
+        for k in range(3):
+            np.add.at(g, m.tets[:, k + 1], -G[:, :, k])
+        np.add.at(g, m.tets[:, 0], G.sum(axis=2))
+        return g
+
+    def _element_hessians(self, x, h, project):
+        m = self.model
+        if self.prony is None:
+            return constitutive.element_hessians(m, x, project=project)
+        a, gamma = self._visco(h)
+        F = constitutive.deformation_gradients(x, m.tets, m.Dm_inv)
+        T = constitutive.complex_step_jacobian(lambda G: -G @ gamma, F)
+        B = constitutive.dF_dx(m.Dm_inv)
+        H = a * constitutive.element_hessians(m, x, project=False)
+        H = H + m.volume[:, None, None] * np.matmul(np.matmul(B.transpose(0, 2, 1), T), B)
+        return constitutive.project_psd(H) if project else H
+
+    def _commit(self, x, h):
+        """Advance the Prony history by h with the converged state."""
+        if self.prony is None:
+            return
+        m = self.model
+        name, mu, lam, eta, a0 = constitutive.model_params(m)
+        F = constitutive.deformation_gradients(x, m.tets, m.Dm_inv)
+        vl = constitutive.model_curves(m)
+        psi = constitutive.energy_density(name, F, mu, lam, eta, a0, vl=vl)
+        S = np.linalg.solve(F, constitutive.first_piola(name, F, mu, lam, eta, a0, vl=vl))
+        self.prony.commit(S, psi, h)
+
     def _phi(self, x, x_tilde, h, f_ext):
-        e = constitutive.elastic_energy(self.model, x) - float(np.sum(f_ext * x))
+        e = self._elastic_energy(x, h) - float(np.sum(f_ext * x))
         if self.mode == "dynamic":
             d = (x - x_tilde).ravel()
             e += 0.5 / (h * h) * float(np.sum(self.mass_dof * d * d))
         return e
 
     def _grad(self, x, x_tilde, h, f_ext):
-        g = constitutive.elastic_gradient(self.model, x) - f_ext
+        g = self._elastic_gradient(x, h) - f_ext
         if self.mode == "dynamic":
             g = g + (self.model.mass[:, None] / (h * h)) * (x - x_tilde)
         return g
 
     def _hessian(self, x, h, project=True):
-        H = constitutive.element_hessians(self.model, x, project=project)
+        H = self._element_hessians(x, h, project)
         n = 3 * self.model.n_nodes
         K = sp.coo_matrix((H.ravel(), (self.rows, self.cols)), shape=(n, n)).tocsr()
         if constitutive.uses_anp(self.model):
@@ -135,6 +196,7 @@ class ReferenceIntegrator:
             t_next = min(t + inc, t_end)
             try:
                 x = self.solve(x, None, t_next - t, t_next)
+                self._commit(x, t_next - t)
             except SimulationDiverged:
                 if inc <= full / 64:
                     raise
@@ -153,4 +215,5 @@ class ReferenceIntegrator:
         x = self.solve(x_tilde, x_tilde, dt, t_end)
         if not np.isfinite(x).all():
             raise SimulationDiverged(f"reference: non-finite positions at t = {t_end:.6g} s")
+        self._commit(x, dt)
         return State(x=x, v=(x - state.x) / dt, t=t_end, private=state.private)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from tissuerender.scene import Scene
 
 # integrators that evaluate the material's Prony series / fibre term (XPBD uses stable Neo-Hookean only)
-PRONY_INTEGRATORS = frozenset({"ebm"})
+PRONY_INTEGRATORS = frozenset({"ebm", "reference"})
 FIBRE_INTEGRATORS = frozenset({"ebm", "reference", "explicit", "cnn"})
 
 
