@@ -74,6 +74,8 @@ def _build(centroids, lo_tri, hi_tri):
 class BVH:
     """BVH over triangles ``points[triangles]``; ``occluded`` and ``closest_hit`` query batches of rays."""
 
+    name = "numba"
+
     def __init__(self, points: np.ndarray, triangles: np.ndarray):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self.triangles = np.ascontiguousarray(triangles, dtype=np.int64)
@@ -86,10 +88,19 @@ class BVH:
         return _occluded(self.lo, self.hi, self.left, self.right, self.start, self.count, self.order, self.points,
                          self.triangles, np.ascontiguousarray(origins), np.ascontiguousarray(targets), eps)
 
+    def occluded_rays(self, origins: np.ndarray, directions: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+        """True where a unit ray hits a triangle within its length."""
+        return _occluded_rays(self.lo, self.hi, self.left, self.right, self.start, self.count, self.order,
+                              self.points, self.triangles, np.ascontiguousarray(origins, dtype=np.float64),
+                              np.ascontiguousarray(directions, dtype=np.float64),
+                              np.ascontiguousarray(lengths, dtype=np.float64))
+
     def closest_hit(self, origins: np.ndarray, directions: np.ndarray, t_max: float = np.inf) -> np.ndarray:
         """Distance to the first triangle along each unit ray (``inf`` when none within ``t_max``)."""
-        return _closest(self.lo, self.hi, self.left, self.right, self.start, self.count, self.order, self.points,
-                        self.triangles, np.ascontiguousarray(origins), np.ascontiguousarray(directions), t_max)
+        t = _closest(self.lo, self.hi, self.left, self.right, self.start, self.count, self.order, self.points,
+                     self.triangles, np.ascontiguousarray(origins), np.ascontiguousarray(directions), t_max)
+        t[t >= t_max] = np.inf
+        return t
 
 
 @njit(cache=True, inline="always")
@@ -193,4 +204,17 @@ def _closest(lo, hi, left, right, start, count, order, pts, tris, origins, direc
         for i in range(task * RAYS_PER_TASK, min(n, (task + 1) * RAYS_PER_TASK)):
             out[i] = _trace(lo, hi, left, right, start, count, order, pts, tris, origins[i, 0], origins[i, 1],
                             origins[i, 2], directions[i, 0], directions[i, 1], directions[i, 2], t_max, False, stack)
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _occluded_rays(lo, hi, left, right, start, count, order, pts, tris, origins, directions, lengths):
+    n = origins.shape[0]
+    out = np.zeros(n, np.bool_)
+    for task in prange((n + RAYS_PER_TASK - 1) // RAYS_PER_TASK):
+        stack = np.empty(128, np.int64)
+        for i in range(task * RAYS_PER_TASK, min(n, (task + 1) * RAYS_PER_TASK)):
+            t = _trace(lo, hi, left, right, start, count, order, pts, tris, origins[i, 0], origins[i, 1],
+                       origins[i, 2], directions[i, 0], directions[i, 1], directions[i, 2], lengths[i], True, stack)
+            out[i] = t < lengths[i]
     return out

@@ -22,7 +22,7 @@ import numpy as np
 import materials
 from tissuerender.render.brdf import layered_reflectance_cos, reflectance_cos
 from tissuerender.render.plastic import roughplastic_cos
-from tissuerender.render.bvh import BVH
+from tissuerender.render.rays import ray_scene
 from tissuerender.render.raster import camera_basis, rasterize_objects
 from tissuerender.stages import StageRecorder, recorder_or_new
 
@@ -91,6 +91,8 @@ class RenderSettings:
     environment_axis: tuple = (0.0, 0.0, 1.0)
     ao_distance: float = 0.02  # occlusion ray length [m]
     ao_samples: int = 8
+    fused: bool = True  # numba direct-lighting passes (shade_kernel); False: the NumPy estimator only
+    ray_backend: str = "auto"  # "auto" | "embree" | "numba" (tissuerender.render.rays)
 
 
 @dataclass
@@ -358,6 +360,49 @@ def _layer_arrays(optics, mat):
     }
 
 
+def _shade_fused(idx, pos, n, wo, albedo, alpha, f0, sss, layered, m, rotation, centre, ln, eu, ev, rays, eps,
+                 radiance, rec):
+    """Direct light of the points ``idx`` through the numba passes of ``shade_kernel``, added to
+    ``radiance``; ``rays`` (the frame's ray scene) None means no shadows."""
+    from tissuerender.render.shade_kernel import light_rays, shade_direct
+
+    if idx.size == 0:
+        return
+    whole = idx.size == pos.shape[0]
+
+    def pick(a):
+        return np.ascontiguousarray(a if whole else a[idx], dtype=np.float64)
+
+    k = idx.size
+    if layered is not None:
+        layer = np.ascontiguousarray(layered["mask"] if whole else layered["mask"][idx])
+        coat = np.stack([layered[key] for key in ("coat_alpha", "coat_ior", "coat_thickness", "granular_weight",
+                                                   "granular_alpha")], axis=1)
+        coat, coat_sigma = pick(coat), pick(layered["coat_sigma"])
+    else:
+        layer, coat, coat_sigma = np.zeros(k, np.bool_), np.zeros((k, 5)), np.zeros((k, 3))
+    p, nn, mm, rot = pick(pos), pick(n), np.ascontiguousarray(m if whole else m[idx], dtype=np.int64), pick(rotation)
+    centre, ln, eu, ev = (np.asarray(c, float) for c in (centre, ln, eu, ev))
+    offsets = np.zeros(k, np.int64)
+    np.cumsum(mm[:-1], out=offsets[1:])
+    total = int(mm.sum())
+    visible = np.ones(total, np.bool_)
+    if rays is not None:
+        with rec.run("shadow_rays"):
+            origins, dirs, tfar = np.empty((total, 3), np.float32), np.empty((total, 3), np.float32), np.empty(total)
+            light_rays(p, nn, mm, offsets, rot, centre, ln, eu, ev, float(eps), origins, dirs, tfar)
+            j = np.flatnonzero(tfar > 0.0)
+            visible[j] = ~rays.occluded_rays(origins[j], dirs[j], tfar[j])
+    out = np.zeros((k, 3))
+    shade_direct(p, nn, pick(wo), pick(albedo), pick(alpha), pick(f0),
+                 pick(sss) if sss is not None else np.zeros((k, 3)), sss is not None, layer, coat, coat_sigma,
+                 mm, offsets, visible, rot, centre, ln, eu, ev, out)
+    if whole:
+        radiance += out
+    else:
+        radiance[idx] += out
+
+
 def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSettings,
                  recorder: StageRecorder | None = None) -> FrameResult:
     """Render one frame: linear HDR radiance (H, W, 3) float32, view depth (H, W) (inf = background)."""
@@ -394,7 +439,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
     bvh = None
     if settings.shadows or settings.sss or settings.ao:
         with rec.run("bvh"):
-            bvh = BVH(P, T)
+            bvh = ray_scene(P, T, settings.ray_backend)
     scale = float(np.ptp(P, axis=0).max()) if P.size else 1.0
     eps = 2e-4 * max(scale, 1e-9)  # ray offset: larger than the facet-vs-shading-normal gap (no acne)
     sss = None
@@ -453,8 +498,14 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
             radiance[act] += f_cos * weight[:, None]
 
         eu2, ev2 = float(eu @ eu), float(ev @ ev)
-        for s in range(int(m.max()) if m.size else 0):
-            act = np.flatnonzero(s < m)
+        slow = np.arange(pos.shape[0])  # points left to the NumPy estimator below
+        if cone is None and settings.fused and pos.shape[0]:
+            fused = np.array([o.bsdf != "roughplastic" for o in optics], bool)[mat]
+            slow = np.flatnonzero(~fused)
+            _shade_fused(np.flatnonzero(fused), pos, n, wo, albedo, alpha, f0, sss, layered, m, rotation,
+                         centre, ln, eu, ev, bvh if settings.shadows else None, eps, radiance, rec)
+        for s in range(int(m[slow].max()) if slow.size else 0):
+            act = slow[s < m[slow]]
             q, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev)
             if cone is not None:
                 # uniform samples landing in R' are replaced by the cone samples below (stratification)
