@@ -23,7 +23,7 @@ import materials
 from tissuerender.render.brdf import layered_reflectance_cos, reflectance_cos
 from tissuerender.render.plastic import roughplastic_cos
 from tissuerender.render.rays import ray_scene
-from tissuerender.render.raster import camera_basis, rasterize_objects
+from tissuerender.render.raster import camera_basis, interpolate_gbuffer, rasterize_objects
 from tissuerender.stages import StageRecorder, recorder_or_new
 
 ADAPTIVE_DISTANCES = (0.08, 0.16)  # [m] thresholds of m(d)
@@ -62,6 +62,7 @@ class AreaLight:
     importance: tuple = ()  # ((centre, radius, multiplier), ...) painted regions for sampling = "importance"
     reflection_cone: bool = False  # extra samples in the part of the light inside the reflection cone
     cone_samples: int = 16
+    pattern: str = "blue_noise"  # per-pixel sample offsets: "blue_noise" (tiled, bluenoise.py) or "white_noise"
 
 
 @dataclass
@@ -157,18 +158,43 @@ def radical_inverse(i: np.ndarray) -> np.ndarray:
     return out
 
 
-def light_sample(s: int, m: np.ndarray, rotation: np.ndarray, pos: np.ndarray, centre, ln, eu, ev):
+def light_sample(s: int, m: np.ndarray, rotation: np.ndarray, pos: np.ndarray, centre, ln, eu, ev,
+                 stride: int = 1, phase: np.ndarray | int = 0):
     """Sample ``s`` of ``m`` on the light for each shading point: the point q, the unit direction wi
-    towards it and the weight ``cos(theta_l) / r^2 * A / m`` (Qian eq. 6.14 with the A/m correction)."""
+    towards it and the weight ``cos(theta_l) / r^2 * A / m`` (Qian eq. 6.14 with the A/m correction).
+
+    The point is number ``s * stride + phase`` of a Hammersley set of ``m * stride`` points, rotated by
+    ``rotation``: the ``stride`` supersamples of one pixel (``phase`` 0 ... stride - 1, sharing the pixel's
+    rotation) together draw one stratified set, interleaved."""
     area = 4.0 * np.linalg.norm(eu) * np.linalg.norm(ev)
-    u = np.mod(s / m + rotation[:, 0], 1.0)
-    v = np.mod(radical_inverse(np.full(m.shape, s)) + rotation[:, 1], 1.0)
+    index = s * stride + np.asarray(phase, np.int64) + np.zeros(m.shape, np.int64)
+    u = np.mod(index / (m * stride) + rotation[:, 0], 1.0)
+    v = np.mod(radical_inverse(index) + rotation[:, 1], 1.0)
     q = centre + (2.0 * u - 1.0)[:, None] * eu + (2.0 * v - 1.0)[:, None] * ev
     wi = q - pos
     d2 = np.maximum(np.einsum("ij,ij->i", wi, wi), 1e-12)
     wi /= np.sqrt(d2)[:, None]
     cos_l = np.clip(-(wi @ ln), 0.0, None)
     return q, wi, cos_l / d2 * area / m
+
+
+def sample_offsets(rows: np.ndarray, cols: np.ndarray, ss: int, pattern: str, seed: int):
+    """Per shading point (raster rows/cols at the supersampled resolution): the Cranley–Patterson rotation
+    of its light samples, the stride and its phase in the pixel's interleaved sample set.
+
+    ``"blue_noise"``: the rotation of the pixel (shared by its ss x ss supersamples) comes from the tiled
+    blue-noise texture; the supersamples take interleaved points of one set of m ss^2 (stride ss^2,
+    phase = supersample index), so a pixel's samples are jointly stratified. ``"white_noise"``: an
+    independent uniform rotation per shading point, each drawing its own m-point set (stride 1)."""
+    if pattern == "white_noise":
+        rng = np.random.default_rng(seed)
+        return rng.random((rows.shape[0], 2)), 1, np.zeros(rows.shape[0], np.int64)
+    if pattern != "blue_noise":
+        raise ValueError(f"light pattern must be 'blue_noise' or 'white_noise', found {pattern!r}")
+    from tissuerender.render import bluenoise
+
+    rotation = bluenoise.rotations(rows // ss, cols // ss, seed)
+    return rotation, ss * ss, ((rows % ss) * ss + cols % ss).astype(np.int64)
 
 
 def cone_angle(alpha: np.ndarray) -> np.ndarray:
@@ -360,8 +386,8 @@ def _layer_arrays(optics, mat):
     }
 
 
-def _shade_fused(idx, pos, n, wo, albedo, alpha, f0, sss, layered, m, rotation, centre, ln, eu, ev, rays, eps,
-                 radiance, rec):
+def _shade_fused(idx, pos, n, wo, albedo, alpha, f0, sss, layered, m, rotation, stride, phase, centre, ln, eu, ev,
+                 rays, eps, radiance, rec):
     """Direct light of the points ``idx`` through the numba passes of ``shade_kernel``, added to
     ``radiance``; ``rays`` (the frame's ray scene) None means no shadows."""
     from tissuerender.render.shade_kernel import light_rays, shade_direct
@@ -382,6 +408,7 @@ def _shade_fused(idx, pos, n, wo, albedo, alpha, f0, sss, layered, m, rotation, 
     else:
         layer, coat, coat_sigma = np.zeros(k, np.bool_), np.zeros((k, 5)), np.zeros((k, 3))
     p, nn, mm, rot = pick(pos), pick(n), np.ascontiguousarray(m if whole else m[idx], dtype=np.int64), pick(rotation)
+    ph = np.ascontiguousarray(phase if whole else phase[idx], dtype=np.int64)
     centre, ln, eu, ev = (np.asarray(c, float) for c in (centre, ln, eu, ev))
     offsets = np.zeros(k, np.int64)
     np.cumsum(mm[:-1], out=offsets[1:])
@@ -390,13 +417,13 @@ def _shade_fused(idx, pos, n, wo, albedo, alpha, f0, sss, layered, m, rotation, 
     if rays is not None:
         with rec.run("shadow_rays"):
             origins, dirs, tfar = np.empty((total, 3), np.float32), np.empty((total, 3), np.float32), np.empty(total)
-            light_rays(p, nn, mm, offsets, rot, centre, ln, eu, ev, float(eps), origins, dirs, tfar)
+            light_rays(p, nn, mm, offsets, rot, int(stride), ph, centre, ln, eu, ev, float(eps), origins, dirs, tfar)
             j = np.flatnonzero(tfar > 0.0)
             visible[j] = ~rays.occluded_rays(origins[j], dirs[j], tfar[j])
     out = np.zeros((k, 3))
     shade_direct(p, nn, pick(wo), pick(albedo), pick(alpha), pick(f0),
                  pick(sss) if sss is not None else np.zeros((k, 3)), sss is not None, layer, coat, coat_sigma,
-                 mm, offsets, visible, rot, centre, ln, eu, ev, out)
+                 mm, offsets, visible, rot, int(stride), ph, centre, ln, eu, ev, out)
     if whole:
         radiance += out
     else:
@@ -415,20 +442,14 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
     with rec.run("raster"):
         P, N, V, T, tri_mat = clip_near(P, N, V, T, tri_mat, camera)
         depth, tri_id, bary = rasterize_objects(P, T, camera, W, H)
-        jj, ii = np.nonzero(tri_id >= 0)
-        corner = T[tri_id[jj, ii]]
-        b = bary[jj, ii]
-        pos = np.einsum("kc,kcd->kd", b, P[corner])
-        n = np.einsum("kc,kcd->kd", b, N[corner])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        wo = np.asarray(camera.position, float) - pos
-        wo /= np.maximum(np.linalg.norm(wo, axis=1, keepdims=True), 1e-12)
-        n = np.where((np.einsum("ij,ij->i", n, wo) < 0.0)[:, None], -n, n)  # seen from behind
-        mat = tri_mat[tri_id[jj, ii]]
+        jj, ii, pos, n, wo, tri = interpolate_gbuffer(P, N, T, tri_id, bary, camera.position)
+        mat = tri_mat[tri]
         albedo = np.array([o.diffuse_albedo for o in optics], float).reshape(-1, 3)[mat]
         alpha = np.array([o.roughness for o in optics], float)[mat] if optics else np.zeros(0)
         f0 = np.array([o.f0 for o in optics], float)[mat] if optics else np.zeros(0)
         gbuffer.update(depth=depth, position=pos, normal=n, material_id=mat, albedo=albedo, roughness=alpha)
+        if settings.motion or any(o.layers is not None and o.layers.texture_seed is not None for o in optics):
+            corner, b = T[tri], bary[jj, ii]
         if settings.motion:
             gbuffer["velocity"] = np.einsum("kc,kcd->kd", b, V[corner][:, :, :3])
         if any(o.layers is not None and o.layers.texture_seed is not None for o in optics):
@@ -464,8 +485,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         else:
             m = sample_counts(np.linalg.norm(pos - centre, axis=1), light)
         gbuffer["light_samples"] = m
-        rng = np.random.default_rng(settings.seed)
-        rotation = rng.random((pos.shape[0], 2))
+        rotation, stride, phase = sample_offsets(jj, ii, ss, light.pattern, settings.seed)
         radiance = np.zeros((pos.shape[0], 3))
         cone = None
         if light.reflection_cone and pos.shape[0]:
@@ -502,11 +522,11 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         if cone is None and settings.fused and pos.shape[0]:
             fused = np.array([o.bsdf != "roughplastic" for o in optics], bool)[mat]
             slow = np.flatnonzero(~fused)
-            _shade_fused(np.flatnonzero(fused), pos, n, wo, albedo, alpha, f0, sss, layered, m, rotation,
-                         centre, ln, eu, ev, bvh if settings.shadows else None, eps, radiance, rec)
+            _shade_fused(np.flatnonzero(fused), pos, n, wo, albedo, alpha, f0, sss, layered, m, rotation, stride,
+                         phase, centre, ln, eu, ev, bvh if settings.shadows else None, eps, radiance, rec)
         for s in range(int(m[slow].max()) if slow.size else 0):
             act = slow[s < m[slow]]
-            q, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev)
+            q, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev, stride, phase[act])
             if cone is not None:
                 # uniform samples landing in R' are replaced by the cone samples below (stratification)
                 u, v = (q - centre) @ eu / eu2, (q - centre) @ ev / ev2

@@ -4,7 +4,7 @@ pinhole camera and keep, per pixel, the nearest triangle and its perspective-cor
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 
 def camera_basis(position, look_at, up):
@@ -82,3 +82,41 @@ def rasterize_objects(points: np.ndarray, triangles: np.ndarray, camera, width: 
     far = depth > camera.far
     depth[far], tri_id[far] = np.inf, -1
     return depth, tri_id, bary
+
+
+@njit(cache=True, parallel=True)
+def _interpolate(P, N, T, tri_id, bary, jj, ii, cam, pos, nrm, wo, tri):
+    for k in prange(jj.shape[0]):
+        t = tri_id[jj[k], ii[k]]
+        tri[k] = t
+        a, b, c = T[t, 0], T[t, 1], T[t, 2]
+        w0, w1, w2 = bary[jj[k], ii[k], 0], bary[jj[k], ii[k], 1], bary[jj[k], ii[k], 2]
+        px = w0 * P[a, 0] + w1 * P[b, 0] + w2 * P[c, 0]
+        py = w0 * P[a, 1] + w1 * P[b, 1] + w2 * P[c, 1]
+        pz = w0 * P[a, 2] + w1 * P[b, 2] + w2 * P[c, 2]
+        nx = w0 * N[a, 0] + w1 * N[b, 0] + w2 * N[c, 0]
+        ny = w0 * N[a, 1] + w1 * N[b, 1] + w2 * N[c, 1]
+        nz = w0 * N[a, 2] + w1 * N[b, 2] + w2 * N[c, 2]
+        nn = max(np.sqrt(nx * nx + ny * ny + nz * nz), 1e-12)
+        vx, vy, vz = cam[0] - px, cam[1] - py, cam[2] - pz
+        vn = max(np.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+        vx, vy, vz = vx / vn, vy / vn, vz / vn
+        s = 1.0 / nn
+        if nx * vx + ny * vy + nz * vz < 0.0:  # seen from behind: the normal faces the viewer
+            s = -s
+        pos[k, 0], pos[k, 1], pos[k, 2] = px, py, pz
+        nrm[k, 0], nrm[k, 1], nrm[k, 2] = nx * s, ny * s, nz * s
+        wo[k, 0], wo[k, 1], wo[k, 2] = vx, vy, vz
+
+
+def interpolate_gbuffer(points, normals, triangles, tri_id, bary, camera_position):
+    """Per covered pixel (row-major order): pixel rows and columns, world position, unit shading normal
+    turned towards the viewer, unit direction to the camera, and the triangle id."""
+    jj, ii = np.nonzero(tri_id >= 0)
+    k = jj.size
+    pos, n, wo = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
+    tri = np.empty(k, np.int64)
+    _interpolate(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(normals, dtype=np.float64),
+                 np.ascontiguousarray(triangles, dtype=np.int64), tri_id, bary, jj, ii,
+                 np.asarray(camera_position, float), pos, n, wo, tri)
+    return jj, ii, pos, n, wo, tri

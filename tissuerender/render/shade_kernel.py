@@ -64,16 +64,17 @@ def _refracted_cos(mu, ior):
 
 
 @njit(cache=True, inline="always")
-def _sample_point(i, s, mi, rotation, centre, eu, ev):
-    u = (s / mi + rotation[i, 0]) % 1.0
-    v = (_radical_inverse(s) + rotation[i, 1]) % 1.0
+def _sample_point(i, s, mi, rotation, stride, phase, centre, eu, ev):
+    index = s * stride + phase[i]
+    u = (index / (mi * stride) + rotation[i, 0]) % 1.0
+    v = (_radical_inverse(index) + rotation[i, 1]) % 1.0
     return (centre[0] + (2.0 * u - 1.0) * eu[0] + (2.0 * v - 1.0) * ev[0],
             centre[1] + (2.0 * u - 1.0) * eu[1] + (2.0 * v - 1.0) * ev[1],
             centre[2] + (2.0 * u - 1.0) * eu[2] + (2.0 * v - 1.0) * ev[2])
 
 
 @njit(cache=True, parallel=True)
-def light_rays(pos, nrm, m, offsets, rotation, centre, ln, eu, ev, eps, origins, dirs, tfar):
+def light_rays(pos, nrm, m, offsets, rotation, stride, phase, centre, ln, eu, ev, eps, origins, dirs, tfar):
     """Shadow rays of every light sample, in the form the ray backends take (float32 origin, unit
     direction, length): sample s of point i is row ``offsets[i] + s``. The segment runs from the point
     lifted ``2 eps`` along its normal to the light sample, shortened by ``eps`` at both ends (the
@@ -87,7 +88,7 @@ def light_rays(pos, nrm, m, offsets, rotation, centre, ln, eu, ev, eps, origins,
         mi = m[i]
         for s in range(mi):
             j = offsets[i] + s
-            qx, qy, qz = _sample_point(i, s, mi, rotation, centre, eu, ev)
+            qx, qy, qz = _sample_point(i, s, mi, rotation, stride, phase, centre, eu, ev)
             wx, wy, wz = qx - px, qy - py, qz - pz
             cos_l = -(wx * ln[0] + wy * ln[1] + wz * ln[2])
             n_l = nx * wx + ny * wy + nz * wz
@@ -108,7 +109,7 @@ def light_rays(pos, nrm, m, offsets, rotation, centre, ln, eu, ev, eps, origins,
 
 @njit(cache=True, parallel=True)
 def shade_direct(pos, nrm, wo, albedo, alpha, f0, sss, has_sss, layer, coat, coat_sigma, m, offsets, visible,
-                 rotation, centre, ln, eu, ev, out):
+                 rotation, stride, phase, centre, ln, eu, ev, out):
     """Add the direct light of the area light to ``out`` (k, 3) (without the light's radiance factor).
 
     Per point i: ``albedo`` (k, 3), ``alpha``, ``f0``, ``sss`` (k, 3) used where ``has_sss``;
@@ -140,7 +141,7 @@ def shade_direct(pos, nrm, wo, albedo, alpha, f0, sss, has_sss, layer, coat, coa
         for s in range(mi):
             if not visible[offsets[i] + s]:
                 continue
-            qx, qy, qz = _sample_point(i, s, mi, rotation, centre, eu, ev)
+            qx, qy, qz = _sample_point(i, s, mi, rotation, stride, phase, centre, eu, ev)
             wx, wy, wz = qx - px, qy - py, qz - pz
             d2 = max(wx * wx + wy * wy + wz * wz, 1e-12)
             inv_d = 1.0 / np.sqrt(d2)

@@ -241,6 +241,7 @@ class Light(Strict):
     importance: Annotated[list[ImportanceStroke], Field(max_length=1000)] = []
     reflection_cone: bool = False
     cone_samples: Annotated[int, Field(ge=1, le=4096)] = 16
+    pattern: Literal["blue_noise", "white_noise"] = "blue_noise"
 
     @model_validator(mode="after")
     def _importance(self):
