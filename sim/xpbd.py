@@ -16,6 +16,7 @@ tets per iteration (with relaxation) instead.
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from sim import xpbd_kernels as kernels
@@ -67,6 +68,13 @@ class XPBD:
         self.alpha_hyd = np.where(has_lam, 1.0 / np.where(has_lam, lam, 1.0) / volume, 1e30)
         self.gamma = np.where(has_lam, 1.0 + mu / np.where(has_lam, lam, 1.0), 1.0)
         self.w = m.inverse_mass()
+        self.kernel = settings.get("kernel", "blocked")
+        if self.kernel not in ("blocked", "scalar"):
+            raise ValueError(f"xpbd kernel must be 'blocked' or 'scalar', found {self.kernel!r}")
+        self.blocks = None
+        if self.solver == "gauss_seidel" and self.kernel == "blocked":
+            self.blocks = kernels.pack_blocks(self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd,
+                                              self.gamma, self.colour_start)
         self.energy = None
         material = settings.get("material", "stable_neo_hookean")
         if material not in ("stable_neo_hookean", "model"):
@@ -107,7 +115,11 @@ class XPBD:
             return
         args = (x, self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd, self.gamma, lam_dev, lam_hyd,
                 inv_dt2, self.mode)
-        if self.solver == "gauss_seidel":
+        if self.blocks is not None:
+            node_index, params, lanes_used, colour_block = self.blocks
+            kernels.gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, inv_dt2, self.mode,
+                                         iterations, numba.get_num_threads())
+        elif self.solver == "gauss_seidel":
             kernels.gauss_seidel(*args, self.colour_start, iterations)
         else:
             kernels.jacobi(*args, self.tet_scale, iterations)
@@ -127,6 +139,8 @@ class XPBD:
             x[self.kin_idx] = self._kinematic_targets(t_next)
             lam_dev[:] = 0.0
             lam_hyd[:] = 0.0
+            if self.blocks is not None:
+                kernels.reset_multipliers(self.blocks[1])
             # with probes or strain limits, those are resolved after every sweep; else one call does all
             per_call = 1 if (m.probes or self.strain_limits is not None) else self.iterations
             for _ in range(self.iterations // per_call):
