@@ -69,6 +69,12 @@ class MucosaLayers:
         """(size, size, 3) tangent-space normals of the same bake (the mucosa's fine relief)."""
         return _bake(self)[1]
 
+    def baked_roughness_factor(self):
+        """(size, size) roughness map of the same bake as a factor on the preset's roughness (0.7 ... 1.3,
+        following the mottle): it scales the tissue's GGX alpha and the granular layer's, not the smooth
+        mucus coat."""
+        return _bake(self)[2]
+
     @property
     def base_albedo(self) -> tuple[float, float, float]:
         """Diffuse albedo of layers 3-4: the connective layer reflects ``c3 (1 - e)``, the submucosa
@@ -88,13 +94,16 @@ def _bake(layers: MucosaLayers):
 
     base = np.asarray(layers.base_albedo)
     palette = np.stack([np.asarray(layers.submucosa_colour), base, np.asarray(layers.connective_colour)])
-    baked = bake_layer(layers.texture_size, palette, 0.3, layers.texture_seed, vessel_density=layers.vessel_density,
+    nominal = 0.3
+    baked = bake_layer(layers.texture_size, palette, nominal, layers.texture_seed, vessel_density=layers.vessel_density,
                        bump=layers.bump)
+    rough = baked.roughness / nominal
+    rough.setflags(write=False)
     albedo = baked.albedo * (base / np.maximum(baked.albedo.reshape(-1, 3).mean(axis=0), 1e-6))
     albedo = np.clip(albedo, 0.0, 1.0)
     albedo.setflags(write=False)
     baked.normal.setflags(write=False)
-    return albedo, baked.normal
+    return albedo, baked.normal, rough
 
 
 # Colon mucosa layers. Mucus: mostly water, n = 1.33–1.35 (Hale & Querry 1973 for water; mucins add

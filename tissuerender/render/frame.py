@@ -338,15 +338,17 @@ def clip_near(P, N, V, T, tri_mat, camera: Camera):
     return np.asarray(P), np.asarray(N), np.asarray(V), T, tri_mat
 
 
-def textured_surface(optics, mat, uv, albedo, n):
-    """Albedo and shading normals of layered materials that have a texture, from their baked mucosa
-    texture (``materials.textures``) sampled bilinearly at the pixels' UVs, one tile per
+def textured_surface(optics, mat, uv, albedo, n, alpha):
+    """Albedo, shading normals and a roughness factor of layered materials that have a texture, from their
+    baked mucosa texture (``materials.textures``) sampled bilinearly at the pixels' UVs, one tile per
     ``texture_period``. The tangent-space normal map is applied in the box-projection frame (the two
     world axes the UVs were taken along), which is the surface's tangent plane on the flat faces the
-    projection is made for."""
+    projection is made for. The roughness map (0.7 ... 1.3 x, following the mottle) scales ``alpha`` and
+    is returned as a factor for the granular layer's roughness (1 where untextured)."""
     from materials.textures import sample_bilinear
 
-    out_albedo, out_n = albedo.copy(), n.copy()
+    out_albedo, out_n, out_alpha = albedo.copy(), n.copy(), alpha.copy()
+    factor = np.ones(albedo.shape[0])
     for mid, o in enumerate(optics):
         layers = o.layers
         if layers is None or layers.texture_seed is None:
@@ -356,6 +358,8 @@ def textured_surface(optics, mat, uv, albedo, n):
             continue
         st = uv[sel] / layers.texture_period
         out_albedo[sel] = sample_bilinear(layers.baked_albedo(), st)
+        factor[sel] = sample_bilinear(layers.baked_roughness_factor()[..., None], st)[:, 0]
+        out_alpha[sel] = alpha[sel] * factor[sel]
         tn = sample_bilinear(layers.baked_normal(), st)
         axis = np.argmax(np.abs(n[sel]), axis=1)
         first = np.where(axis == 0, 1, 0)  # box_uv: u along y for x-facing, else along x
@@ -364,7 +368,7 @@ def textured_surface(optics, mat, uv, albedo, n):
         b = np.eye(3)[second]
         bent = tn[:, :1] * t + tn[:, 1:2] * b + tn[:, 2:] * n[sel]
         out_n[sel] = bent / np.maximum(np.linalg.norm(bent, axis=1, keepdims=True), 1e-12)
-    return out_albedo, out_n
+    return out_albedo, out_n, out_alpha, factor
 
 
 def _layer_arrays(optics, mat):
@@ -448,6 +452,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         alpha = np.array([o.roughness for o in optics], float)[mat] if optics else np.zeros(0)
         f0 = np.array([o.f0 for o in optics], float)[mat] if optics else np.zeros(0)
         gbuffer.update(depth=depth, position=pos, normal=n, material_id=mat, albedo=albedo, roughness=alpha)
+        rough_factor = None
         if settings.motion or any(o.layers is not None and o.layers.texture_seed is not None for o in optics):
             corner, b = T[tri], bary[jj, ii]
         if settings.motion:
@@ -455,8 +460,8 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         if any(o.layers is not None and o.layers.texture_seed is not None for o in optics):
             uv = np.einsum("kc,kcd->kd", b, V[corner][:, :, 3:])
             gbuffer["uv"] = uv
-            albedo, n = textured_surface(optics, mat, uv, albedo, n)
-            gbuffer.update(albedo=albedo, normal=n)
+            albedo, n, alpha, rough_factor = textured_surface(optics, mat, uv, albedo, n, alpha)
+            gbuffer.update(albedo=albedo, normal=n, roughness=alpha)
     bvh = None
     if settings.shadows or settings.sss or settings.ao:
         with rec.run("bvh"):
@@ -477,6 +482,8 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
             transmit = np.exp(-sigma * np.where(np.isfinite(thickness), thickness, np.inf)[:, None])
             sss = k_sss[:, None] * (colour / np.pi * transmit - albedo / np.pi)
     layered = _layer_arrays(optics, mat)
+    if layered is not None and rough_factor is not None:
+        layered["granular_alpha"] = layered["granular_alpha"] * rough_factor
     hdr = np.zeros((H, W, 3), np.float32)
     with rec.run("shade"):
         centre, ln, eu, ev = light_frame(light, camera)
