@@ -3,19 +3,30 @@
 energy propagation on about 1,500 nodes (thesis: 30 Hz on an i7-5500U), plus explicit and linear-FEM
 CNN for scale.
 
-Usage: .venv/bin/python benchmarks/zhang_rates.py [--quick]
+The thesis's settings are kept: EBM 20 iterations per step (its 5.3 figures), dt = 1 ms; the CNN with
+energy propagation one step per 60 Hz frame (dt = 1/60 s) with energy_rho = 1 m^2/s, which our forward
+Euler (4.12) needs 1,482 potential sub-steps to resolve (printed; the numba path evaluates them in closed
+form, sim/cnn_energy.py ModalPropagation). One core: numba and BLAS pinned to one thread. Each rate is the
+median of ``repeats`` timed runs.
+
+Usage: .venv/bin/python benchmarks/zhang_rates.py [--quick] [--kernel numba|numpy]
 Last line: one JSON object of steps per second ("<case>_hz") with the thesis's reference rates.
 """
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import platform
-import time
 
-import numba
-import numpy as np
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # one core, as the thesis's figures (set before NumPy loads BLAS)
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
 
 from sim.integrators import make_integrator
 from sim.mesh import procedural, select
@@ -44,37 +55,65 @@ def cnn_cube() -> Model:
     return model
 
 
-def rate(name: str, model: Model, settings: dict, dt: float, steps: int) -> float:
+def rate(name: str, model: Model, settings: dict, dt: float, steps: int, repeats: int):
+    """(median steps per second over ``repeats`` runs of ``steps`` steps, the integrator)."""
     integrator = make_integrator(name, model, settings)
-    state = integrator.step(State.at_rest(model), dt)  # warm-up
-    start = time.perf_counter()
-    for _ in range(steps):
-        state = integrator.step(state, dt)
-    return steps / (time.perf_counter() - start)
+    state = integrator.step(State.at_rest(model), dt)  # warm-up: compilation
+    rates = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(steps):
+            state = integrator.step(state, dt)
+        rates.append(steps / (time.perf_counter() - start))
+    return statistics.median(rates), integrator
+
+
+def describe(name: str, integrator, settings: dict, dt: float) -> str:
+    """The settings that set the cost of one step, printed beside its rate."""
+    parts = [f"dt {dt:.4g} s"]
+    if name == "ebm":
+        parts.append(f"{integrator.iterations} iterations, {integrator.model.n_tets} tets, kernel {integrator.kernel}")
+    else:
+        parts.append(f"{integrator.model.n_nodes} nodes, force_model {settings.get('force_model')}")
+        energy = getattr(integrator, "energy", None)
+        if energy is not None:
+            parts.append(f"energy_rho {energy.rho:g} m^2/s, {energy.substeps(dt)} potential sub-steps/step "
+                         f"({energy.propagation})")
+    return ", ".join(parts)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="fewer steps")
+    parser.add_argument("--quick", action="store_true", help="fewer steps and repeats")
+    parser.add_argument("--kernel", choices=("numba", "numpy"), default="numba",
+                        help="numba kernels (default) or the NumPy reference paths")
     args = parser.parse_args()
-    steps = 10 if args.quick else 50
+    steps, repeats = (20, 3) if args.quick else (100, 7)
     numba.set_num_threads(1)
     result: dict = {}
+    kernel = {"kernel": args.kernel}
     cases = [
-        ("ebm_isotropic_480tets", "ebm", ebm_block("neo_hookean"), {"iterations": 20}, 1e-3, 1000.0),
+        ("ebm_isotropic_480tets", "ebm", ebm_block("neo_hookean"), {"iterations": 20, **kernel}, 1e-3, 1000.0),
         ("ebm_anisotropic_480tets", "ebm", ebm_block("anisotropic_neo_hookean", fibre=[0.0, 0.0, 1.0]),
-         {"iterations": 20}, 1e-3, 200.0),
-        ("cnn_energy_1331nodes", "cnn", cnn_cube(), {"force_model": "energy", "K": 4.0}, 1.0 / 60.0, 30.0),
-        ("cnn_linear_fem_1331nodes", "cnn", cnn_cube(), {"force_model": "linear_fem", "K": 4.0}, 1e-3, None),
-        ("explicit_linear_fem_1331nodes", "explicit", cnn_cube(), {"force_model": "linear_fem"}, 1e-3, None),
+         {"iterations": 20, **kernel}, 1e-3, 200.0),
+        ("cnn_energy_1331nodes", "cnn", cnn_cube(), {"force_model": "energy", "K": 4.0, **kernel}, 1.0 / 60.0, 30.0),
+        # forward Euler needs damping of the highest modes to be stable at all (docs/integrators-zhang.md)
+        ("cnn_linear_fem_1331nodes", "cnn", cnn_cube(),
+         {"force_model": "linear_fem", "K": 4.0, "rayleigh_beta": 0.002, **kernel}, 1e-3, None),
+        ("explicit_linear_fem_1331nodes", "explicit", cnn_cube(),
+         {"force_model": "linear_fem", "rayleigh_beta": 0.002, **kernel}, 1e-3, None),
     ]
     for key, name, model, settings, dt, thesis in cases:
-        hz = rate(name, model, settings, dt, steps)
+        hz, integrator = rate(name, model, settings, dt, steps, repeats)
         result[f"{key}_hz"] = round(hz, 1)
         if thesis is not None:
             result[f"{key}_thesis_hz"] = thesis
-        print(f"{key:32s} {hz:9.1f} steps/s" + (f"   (thesis {thesis:g} Hz)" if thesis else ""))
-    result["machine"] = f"{platform.machine()} {os.cpu_count()} cpus, 1 numba thread, NumPy integrators"
+        print(f"{key:32s} {hz:9.1f} steps/s" + (f"   (thesis {thesis:g} Hz)" if thesis else "")
+              + f"   [{describe(name, integrator, settings, dt)}]")
+    result["settings"] = {"ebm_iterations": 20, "ebm_dt_s": 1e-3, "cnn_energy_dt_s": round(1.0 / 60.0, 6),
+                          "energy_rho_m2_per_s": 1.0, "steps": steps, "repeats": repeats, "statistic": "median"}
+    result["machine"] = (f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus, 1 numba thread, "
+                         f"1 BLAS thread, kernel {args.kernel}")
     print(json.dumps(result))
 
 

@@ -31,13 +31,23 @@ Equations (Zhang ch. 4, with the readings documented in docs/integrators-zhang.m
   redistributes the load, it does not create it.
 
 Settings (``force_model = "energy"`` in ``cnn``): ``energy_rho`` [m^2/s] constitutive (diffusion)
-coefficient, default 1.0.
+coefficient, default 1.0; ``kernel`` = ``"numba"`` (default) or ``"numpy"`` (the reference below).
+
+Speed (``kernel = "numba"``): the potential's ODE is linear with constant templates, so the n forward-Euler
+sub-steps of one call are evaluated in closed form on the eigenmodes of the free cells' template
+(``ModalPropagation``: ``A_ff = Omega^-1 L_ff`` is similar to the symmetric ``Omega^-1/2 L_ff Omega^-1/2``,
+so ``(I + h A_ff)^n`` is diagonal in its eigenbasis): the same iterate as the sub-step loop (to rounding,
+tested), at the cost of two dense products per call instead of n sparse ones. Models with more than
+``MODAL_MAX_CELLS`` free cells run the sub-steps in the numba kernel (``sim.zhang_kernels``); forces use
+the numba edge kernel.
 """
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+from sim import zhang_kernels
 
 # the six edges of a tet as (i, j, k, l): edge i-j, the two other vertices k and l
 TET_EDGES = np.array([(0, 1, 2, 3), (0, 2, 1, 3), (0, 3, 1, 2), (1, 2, 0, 3), (1, 3, 0, 2), (2, 3, 0, 1)])
@@ -118,6 +128,60 @@ def edge_table(tets: np.ndarray, volume: np.ndarray, S: np.ndarray):
 
 
 GRADIENTS = ("median_dual", "edge")
+KERNELS = ("numba", "numpy")
+MODAL_MAX_CELLS = 3000  # dense eigenbasis up to this many free cells (72 MB, eigh ~ seconds); sub-steps above
+
+
+class ModalPropagation:
+    """Closed form of n forward-Euler sub-steps ``phi <- phi + h (A phi - Q)`` on the free cells.
+
+    With ``Omega_f^1/2 A_ff Omega_f^-1/2 = U diag(s) U^T`` (symmetric: the median-dual flux matrix of linear
+    tets is the P1 Laplacian, ``L_ab = -rho V grad N_a . grad N_b``), the modal coordinates
+    ``z = U^T Omega_f^1/2 phi_f`` obey ``z <- tau z + h b`` with ``tau = 1 + h s`` and
+    ``b = U^T Omega_f^1/2 (Omega_f^-1 L_fc phi_c - Q_f)`` (fixed cells hold phi_c), so after n sub-steps
+    ``z_n = tau^n z_0 + h b (tau^n - 1) / (tau - 1)``; the geometric sum is evaluated with expm1/log1p so that
+    slow modes (h s -> 0) keep their precision, and is n for s = 0 (a cell group without a Dirichlet cell).
+    The modal coordinates of the last result are kept: when the next call starts from that potential (the
+    CNN stepping on), the projection is skipped and one dense product remains per call.
+    """
+
+    def __init__(self, L: sp.csr_matrix, omega: np.ndarray, fixed: np.ndarray, Q: np.ndarray):
+        self.free = np.flatnonzero(~fixed)
+        self.fixed = np.flatnonzero(fixed)
+        Lf = L[self.free]
+        L_ff = Lf[:, self.free].toarray()
+        self.L_fc = Lf[:, self.fixed].tocsr()
+        self.sqrt_omega = np.sqrt(omega[self.free])
+        r = 1.0 / self.sqrt_omega
+        sym = r[:, None] * L_ff * r[None, :]
+        self.s, self.U = np.linalg.eigh(0.5 * (sym + sym.T))
+        self.s = np.minimum(self.s, 0.0)  # negative semi-definite up to rounding
+        self.b0 = self.U.T @ (-self.sqrt_omega[:, None] * Q[self.free])
+        self._last = (None, None)  # (phi_f, z) of the last result
+
+    def propagate(self, phi: np.ndarray, h: float, n: int) -> np.ndarray:
+        out = phi.copy()
+        phi_c = phi[self.fixed]
+        b = self.b0
+        if np.any(phi_c != 0.0):
+            b = b + self.U.T @ ((self.L_fc @ phi_c) / self.sqrt_omega[:, None])
+        phi_f = phi[self.free]
+        last_phi_f, last_z = self._last
+        if last_phi_f is not None and np.array_equal(phi_f, last_phi_f):
+            z = last_z
+        else:
+            z = self.U.T @ (self.sqrt_omega[:, None] * phi_f)
+        hs = h * self.s
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_tau = np.log1p(np.maximum(hs, -1.0))
+            smooth = hs > -0.5  # tau > 1/2: tau^n and (tau^n - 1) / (h s) from log1p/expm1
+            tau_n = np.where(smooth, np.exp(n * log_tau), (1.0 + hs) ** n)
+            geometric = np.where(hs == 0.0, float(n),
+                                 np.where(smooth, np.expm1(n * log_tau), tau_n - 1.0) / np.where(hs == 0.0, 1.0, hs))
+        z = tau_n[:, None] * z + (h * geometric)[:, None] * b
+        out[self.free] = (self.U @ z) / self.sqrt_omega[:, None]
+        self._last = (out[self.free], z)
+        return out
 
 
 class EnergyPropagation:
@@ -132,6 +196,9 @@ class EnergyPropagation:
         self.gradient = settings.get("energy_gradient", "median_dual")
         if self.gradient not in GRADIENTS:
             raise ValueError(f"cnn: energy_gradient must be one of {', '.join(GRADIENTS)}, found {self.gradient!r}")
+        self.kernel = settings.get("kernel", "numba")
+        if self.kernel not in KERNELS:
+            raise ValueError(f"cnn: kernel must be one of {', '.join(KERNELS)}, found {self.kernel!r}")
         X = model.X
         self.L, self.omega = flux_matrix(X, model.tets, self.rho)
         self.fixed = model.kinematic_mask()
@@ -152,6 +219,16 @@ class EnergyPropagation:
         # explicit diffusion limit: Gershgorin bound on the spectral radius of A
         lam = float(np.abs(self.A).sum(axis=1).max())
         self.h_max = 1.8 / lam
+        self._edges = np.ascontiguousarray(self.edges, dtype=np.int64)
+        self._fixed = np.ascontiguousarray(self.fixed)
+        self.modal = None
+        if self.kernel == "numba":
+            self.propagation = "modal" if int(self.free.sum()) <= MODAL_MAX_CELLS else "substeps"
+            if self.propagation == "modal":
+                self.modal = ModalPropagation(self.L, self.omega, self.fixed, self.Q)
+            self._A_csr = (self.A.indptr.astype(np.int64), self.A.indices.astype(np.int64), self.A.data.copy())
+        else:
+            self.propagation = "numpy"
         self.gain = 1.0
         if self.total_load > 0.0:
             raw = self.forces(self.steady_potential(), X)
@@ -183,12 +260,22 @@ class EnergyPropagation:
 
     def evolve(self, phi: np.ndarray, dt: float) -> np.ndarray:
         """Advance the three-layer potential by dt with forward Euler (4.12) in stable sub-steps."""
-        n = max(1, int(np.ceil(dt / self.h_max)))
+        n = self.substeps(dt)
         h = dt / n
-        for _ in range(n):
-            phi = phi + h * self.rate(phi)
+        if self.propagation == "modal":
+            phi = self.modal.propagate(phi, h, n)
+        elif self.propagation == "substeps":
+            phi = np.array(phi, dtype=np.float64, order="C")
+            zhang_kernels.euler_substeps(phi, np.empty_like(phi), *self._A_csr, self.Q, self._fixed, h, n)
+        else:
+            for _ in range(n):
+                phi = phi + h * self.rate(phi)
         phi[self.fixed] = 0.0
         return phi
+
+    def substeps(self, dt: float) -> int:
+        """Forward-Euler sub-steps of the potential per ``evolve(phi, dt)`` (below the diffusion limit)."""
+        return max(1, int(np.ceil(dt / self.h_max)))
 
     def steady_potential(self) -> np.ndarray:
         """The CNN's equilibrium (d phi/dt = 0): ``L phi = Omega Q`` on free cells, phi = 0 on fixed ones."""
@@ -215,6 +302,12 @@ class EnergyPropagation:
         weighted by the dual face vector instead of ``e_ij / l_ij`` (the Green–Gauss form of 4.11), exact for
         a linear psi on any tet mesh; the edge form is biased along the Kuhn diagonals of box meshes.
         """
+        if self.kernel == "numba":
+            f = np.empty((x.shape[0], 3))
+            zhang_kernels.potential_forces(np.ascontiguousarray(phi, dtype=np.float64), self.direction,
+                                           np.ascontiguousarray(x, dtype=np.float64), self._edges, self.edge_S,
+                                           self.edge_w, self.gain, self.gradient == "edge", self._fixed, f)
+            return f
         psi = phi @ self.direction
         i, j = self.edges[:, 0], self.edges[:, 1]
         if self.gradient == "edge":

