@@ -20,9 +20,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from postfx import effects
+from postfx import lens_flare as _flare
 from postfx.params import EFFECTS, EffectParams
 
-DEFAULT_ORDER = ["depth_of_field", "chromatic_aberration", "bloom", "blur", "sensor_noise", "tonemap", "color_grade",
+DEFAULT_ORDER = ["depth_of_field", "chromatic_aberration", "lens_flare", "bloom", "blur", "sensor_noise", "tonemap", "color_grade",
                  "sharpen", "laparoscope_mask"]
 
 # Named camera signatures: (effect, parameters) in order.
@@ -59,19 +60,22 @@ class Lens:
 @dataclass
 class ChainResult:
     image: np.ndarray
-    seconds: dict = field(default_factory=dict)
+    seconds: dict = field(default_factory=dict)  # per effect
     backend_used: str = "numpy"
+    total_seconds: float = 0.0  # the whole chain, with the osmesa upload and read-back
 
 
 # effects that need only the image and their parameters
-_IMAGE_ONLY = ("chromatic_aberration", "tonemap", "laparoscope_mask", "color_grade", "blur", "sharpen", "bloom")
+_IMAGE_ONLY = {name: getattr(effects, name) for name in ("chromatic_aberration", "tonemap", "laparoscope_mask",
+                                                         "color_grade", "blur", "sharpen", "bloom")}
+_IMAGE_ONLY["lens_flare"] = _flare.lens_flare
 
 
 def apply_effect(name: str, img: np.ndarray, depth: np.ndarray, params: EffectParams, lens: Lens,
                  seed: int = 0) -> np.ndarray:
-    """One effect with the NumPy reference backend (``postfx.effects``)."""
+    """One effect with the NumPy reference backend (``postfx.effects``, ``postfx.lens_flare``)."""
     if name in _IMAGE_ONLY:
-        return getattr(effects, name)(img, params)
+        return _IMAGE_ONLY[name](img, params)
     if name == "depth_of_field":
         return effects.depth_of_field(img, depth, params, lens.fov_deg)
     if name == "sensor_noise":
@@ -90,19 +94,20 @@ def apply_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens: Lens, backend: 
     used = backend
     if backend == "auto":
         used = "osmesa" if osmesa_available() else "numpy"
-    run = apply_effect
+    img = np.ascontiguousarray(hdr, dtype=np.float32)
     if used == "osmesa":
         from postfx import osmesa
 
         osmesa.Context.get()  # raises OSMesaUnavailable naming libosmesa6 when it cannot run
-        run = osmesa.apply_effect
-    img = np.ascontiguousarray(hdr, dtype=np.float32)
+        img, seconds, total = osmesa.run_chain(img, depth, chain, lens, seed)  # one upload, one read-back
+        return ChainResult(np.clip(img, 0.0, 1.0), seconds, used, total)
     seconds = {}
+    begin = time.perf_counter()
     for name, params in chain:
         start = time.perf_counter()
-        img = run(name, img, depth, params, lens, seed).astype(np.float32, copy=False)
+        img = apply_effect(name, img, depth, params, lens, seed).astype(np.float32, copy=False)
         seconds[name] = time.perf_counter() - start
-    return ChainResult(np.clip(img, 0.0, 1.0), seconds, used)
+    return ChainResult(np.clip(img, 0.0, 1.0), seconds, used, time.perf_counter() - begin)
 
 
 def osmesa_available() -> bool:

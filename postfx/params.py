@@ -127,6 +127,43 @@ class SensorNoise(EffectParams):
     read: Annotated[float, Field(ge=0.0, le=1.0)] = 0.003
 
 
+class LensFlare(EffectParams):
+    """Pseudo lens flare from HDR highlights (after J. Chapman, "Pseudo Lens Flare", 2013): the part of
+    the image above ``threshold`` (luminance, scene-linear) at half resolution, imaged again by each
+    ghost and by a halo, blurred, and added times ``intensity`` before the tone map.
+
+    Ghost ``[s, r, g, b]``: a copy of the highlights scaled by ``s`` about the optical centre ``c``
+    (a highlight at x appears at ``c + s (x - c)``; s < 0 mirrors it through the centre), tinted
+    (r, g, b) and dimmed by ``1 / s^2`` so that its energy does not depend on its size. Halo: a
+    highlight at x appears ``halo_radius`` further out along the ray from the centre through x (a
+    highlight at the centre draws a ring). Both fade with the source's distance from the centre,
+    ``(1 - |x - c| / half diagonal)^falloff``.
+    """
+
+    threshold: Annotated[float, Field(ge=0.0, le=1e6, description="luminance where highlights start")] = 2.0
+    intensity: Annotated[float, Field(ge=0.0, le=10.0)] = 0.1
+    ghosts: Annotated[list[Annotated[list[float], Field(min_length=4, max_length=4)]], Field(max_length=16)] = [
+        [-0.5, 1.0, 0.65, 0.35], [-1.0, 0.35, 0.6, 1.0], [-1.6, 0.45, 1.0, 0.55], [1.4, 1.0, 0.5, 0.8]]
+    halo_radius: Annotated[float, Field(ge=0.0, le=4.0, description="fraction of half the image height")] = 0.6
+    halo_tint: Annotated[list[Annotated[float, Field(ge=0.0, le=10.0)]], Field(min_length=3, max_length=3)] = [
+        0.25, 0.3, 0.4]
+    falloff: Annotated[int, Field(ge=0, le=16, description="integer exponent of the radial fade")] = 2
+    blur_px: Annotated[float, Field(ge=0.0, le=16.0, description="softening of ghosts and halo [px]")] = 2.0
+    centre: Annotated[list[Annotated[float, Field(ge=0.0, le=1.0)]], Field(min_length=2, max_length=2,
+                      description="optical centre as a fraction of width and height")] = [0.5, 0.5]
+
+    @field_validator("ghosts")
+    @classmethod
+    def _ghost_scale_and_tint(cls, ghosts):
+        for k, (scale, *tint) in enumerate(ghosts):
+            if not 0.5 <= abs(scale) <= 8.0:
+                raise ValueError(f"ghost {k}: scale must satisfy 0.5 <= |scale| <= 8 (smaller ghosts would skip "
+                                 f"highlights at half resolution), found {scale}")
+            if any(not 0.0 <= t <= 10.0 for t in tint):
+                raise ValueError(f"ghost {k}: tint values must be in [0, 10], found {tint}")
+        return ghosts
+
+
 EFFECTS: dict[str, type[EffectParams]] = {
     "depth_of_field": DepthOfField,
     "chromatic_aberration": ChromaticAberration,
@@ -135,6 +172,7 @@ EFFECTS: dict[str, type[EffectParams]] = {
     "blur": Blur,
     "sharpen": Sharpen,
     "bloom": Bloom,
+    "lens_flare": LensFlare,
     "sensor_noise": SensorNoise,
     "laparoscope_mask": LaparoscopeMask,
 }

@@ -6,7 +6,7 @@ import pytest
 
 import postfx
 from postfx import osmesa
-from postfx.params import (EFFECTS, Bloom, Blur, ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask,
+from postfx.params import (EFFECTS, Bloom, Blur, ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask, LensFlare,
                            SensorNoise, Sharpen, Tonemap)
 
 needs_osmesa = pytest.mark.skipif(not osmesa.library_available(),
@@ -22,6 +22,7 @@ CASES = {
     "sharpen": Sharpen(amount=0.8, sigma_px=1.5),
     "bloom": Bloom(threshold=2.0, intensity=0.5, sigma_px=4.0),
     "sensor_noise": SensorNoise(shot=0.01, read=0.02),
+    "lens_flare": LensFlare(threshold=3.0, intensity=0.5, halo_radius=0.5, blur_px=3.0),
     "color_grade": ColorGrade(lift=[0.02, 0.0, -0.01], gamma=[1.1, 1.0, 0.9], gain=[1.0, 0.95, 0.9], contrast=1.3,
                               curve=[[0.0, 0.0], [0.3, 0.22], [0.7, 0.8], [1.0, 1.0]],
                               curve_g=[[0.0, 0.02], [1.0, 0.98]], saturation=0.8),
