@@ -27,7 +27,37 @@ def test_internal_diffuse_reflectance_matches_the_published_fit():
 
 
 @pytest.mark.parametrize("alpha", [0.05, 0.25, 0.6])
-def test_transmittance_is_one_minus_the_coating_albedo(alpha):
+@pytest.mark.parametrize("mu", [0.2, 0.7])
+def test_transmittance_table_is_the_interface_transmission_albedo(alpha, mu):
+    """t(mu) against an independent Monte Carlo of the same integral (microfacet normals drawn uniformly
+    on the hemisphere), and bounded by the energy the coating does not reflect: t <= 1 - E_spec."""
+    from tissuerender.render.brdf import ggx_D
+    from tissuerender.render.plastic import _coating_albedo, smith_G1_oriented, transmittance
+
+    eta = 1.49
+    rng = np.random.default_rng(2)
+    k = 1_000_000
+    z = rng.random(k)
+    phi = 2 * np.pi * rng.random(k)
+    s = np.sqrt(1 - z * z)
+    m = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=1)
+    wi = np.array([np.sqrt(1 - mu * mu), 0.0, mu])
+    c = m @ wi
+    sin_t2 = (1 - c * c) / eta**2
+    cos_t = np.sqrt(np.maximum(1 - sin_t2, 0))
+    wt = -wi / eta + (c / eta - cos_t)[:, None] * m
+    wis = np.broadcast_to(wi, m.shape)
+    f = (ggx_D(z, alpha) * smith_G1_oriented(wis, m, alpha) * np.maximum(c, 0) / mu
+         * (1 - fresnel(c, eta)) * smith_G1_oriented(wt, m, alpha))
+    brute = np.mean(np.where(c > 0, f, 0.0)) * 2 * np.pi
+    tol = 0.01 if alpha > 0.1 else 0.05  # a sharp lobe is noisy under uniform sampling
+    assert transmittance(np.array([mu]), alpha, eta)[0] == pytest.approx(brute, rel=tol)
+    mus, albedo = _coating_albedo(alpha, eta)
+    assert transmittance(np.array([mu]), alpha, eta)[0] <= 1.0 - np.interp(mu, mus, albedo) + 1e-3
+
+
+@pytest.mark.parametrize("alpha", [0.05, 0.25, 0.6])
+def test_coating_lobe_albedo_matches_brute_force(alpha):
     # brute-force Monte Carlo of the coating's directional albedo at 60 degrees, cosine sampling
     eta, mu = 1.49, 0.5
     rng = np.random.default_rng(0)
@@ -40,7 +70,10 @@ def test_transmittance_is_one_minus_the_coating_albedo(alpha):
     f_cos = roughplastic_cos(n, wo, wi, np.zeros((k, 3)), alpha, eta)[:, 0]  # coating only
     albedo = np.mean(f_cos * np.pi / wi[:, 2])
     tol = 0.01 if alpha > 0.1 else 0.03  # a sharp lobe is noisy under cosine sampling
-    assert 1.0 - transmittance(np.array([mu]), alpha, eta)[0] == pytest.approx(albedo, abs=tol)
+    from tissuerender.render.plastic import _coating_albedo
+
+    mus, table = _coating_albedo(alpha, eta)
+    assert np.interp(mu, mus, table) == pytest.approx(albedo, abs=tol)
 
 
 def test_reciprocal_and_finite_at_grazing():

@@ -7,8 +7,10 @@ renderer, ``benchmarks/plastic_vs_mitsuba.py``).
 
 - D: GGX with alpha; G1: the separable Smith shadowing of GGX; F: exact unpolarised dielectric
   Fresnel for the index ratio eta = n_coat / n_outside (1.49 by default, Mitsuba's polypropylene);
-- t(mu) = 1 - E_spec(mu): the light the rough coating lets through, one minus the coating's
-  directional albedo, tabulated per (alpha, eta) by quadrature;
+- t(mu): the light the rough coating transmits into the base, the transmission albedo of the GGX
+  interface with the refracted direction masked too (Mitsuba 3's ``eval_transmittance``), tabulated
+  per (alpha, eta) by quadrature; it is below 1 - E_spec(mu), the masking loss growing with alpha and
+  at grazing angles;
 - F_dr = 2 int_0^1 E_spec(mu, 1/eta) mu dmu: the rough coating's reflectance for diffuse light from
   inside (total internal reflection included), so the base's repeated internal bounces sum to
   rho / (1 - F_dr).
@@ -71,10 +73,49 @@ def _coating_albedo(alpha: float, eta: float, n_samples: int = 256):
     return mus, np.clip(albedo, 0.0, 1.0)
 
 
+def smith_G1_oriented(v: np.ndarray, m: np.ndarray, alpha: float) -> np.ndarray:
+    """Smith GGX masking of direction ``v`` (either side of the surface) by microfacet ``m``: zero when
+    v sees the back of the facet, ``(v.m) v_z <= 0``."""
+    vz2 = np.maximum(v[:, 2] * v[:, 2], 1e-300)
+    tan2 = np.maximum(1.0 - vz2, 0.0) / vz2
+    g = 2.0 / (1.0 + np.sqrt(1.0 + alpha * alpha * tan2))
+    return np.where(np.einsum("ij,ij->i", v, m) * v[:, 2] > 0.0, g, 0.0)
+
+
+@functools.lru_cache(maxsize=32)
+def _coating_transmittance(alpha: float, eta: float, n_samples: int = 256):
+    """(mu grid, T(mu)): the light a rough dielectric interface transmits into the layer for light
+    arriving at cosine mu, T = int (1 - F(wi.m)) G1(wi) G1(wt) D(m) (wi.m) / mu dm with wt the direction
+    refracted through the facet m (as Mitsuba 3's ``eval_transmittance``). The masking of the refracted
+    direction makes it smaller than 1 - E_spec(mu): light the coating neither reflects nor transmits
+    is the energy the single-scattering microfacet model loses."""
+    mus = np.maximum(np.arange(TABLE_SIZE) / (TABLE_SIZE - 1.0), 1e-6)
+    g = (np.arange(n_samples) + 0.5) / n_samples
+    u, v = np.meshgrid(g, g, indexing="ij")
+    u, v = u.ravel(), v.ravel()
+    cos_h = np.sqrt((1.0 - u) / (1.0 + (alpha * alpha - 1.0) * u))
+    sin_h = np.sqrt(np.maximum(1.0 - cos_h * cos_h, 0.0))
+    m = np.stack([sin_h * np.cos(2 * np.pi * v), sin_h * np.sin(2 * np.pi * v), cos_h], axis=1)
+    out = np.empty(TABLE_SIZE)
+    for k, mu in enumerate(mus):
+        wi = np.array([np.sqrt(1.0 - mu * mu), 0.0, mu])
+        c = m @ wi
+        sin_t2 = (1.0 - c * c) / (eta * eta)
+        cos_t = np.sqrt(np.maximum(1.0 - sin_t2, 0.0))
+        wt = -wi[None, :] / eta + (c / eta - cos_t)[:, None] * m
+        wis = np.broadcast_to(wi, m.shape)
+        # estimator with pdf(m) = D(m) (n.m): (1 - F) G1(wi) G1(wt) (wi.m) / (mu (n.m))
+        est = ((1.0 - fresnel(c, eta)) * smith_G1_oriented(wis, m, alpha) * smith_G1_oriented(wt, m, alpha)
+               * c / (mu * m[:, 2]))
+        out[k] = np.sum(np.where((c > 0.0) & (sin_t2 < 1.0), est, 0.0)) / est.size
+    return mus, np.clip(out, 0.0, 1.0)
+
+
 def transmittance(mu: np.ndarray, alpha: float, eta: float) -> np.ndarray:
-    """t(mu) = 1 - E_spec(mu), linearly interpolated in the table."""
-    mus, albedo = _coating_albedo(float(alpha), float(eta))
-    return np.interp(np.clip(mu, 0.0, 1.0), mus, 1.0 - albedo)
+    """t(mu): the coating's transmission into the base (``_coating_transmittance``), linearly
+    interpolated in the table."""
+    mus, t = _coating_transmittance(float(alpha), float(eta))
+    return np.interp(np.clip(mu, 0.0, 1.0), mus, t)
 
 
 def smooth_internal_reflectance(eta: float, n: int = 4096) -> float:
