@@ -6,6 +6,9 @@ Last line: one JSON object with seconds_per_frame_t1, seconds_per_frame_t2 and p
 ("<stage>_t<threads>"). Stages: raster (G-buffer), bvh (build), thickness (SSS rays), shadow_rays,
 shade (light sampling and BRDF, shadow rays excluded). Post-effects are not included
 (benchmarks/postfx.py measures them). The first frame (compilation) is not timed.
+Rays go through Intel Embree (embreex) when it is installed, as the renderer does; the same frame is
+then timed again with the project's numba BVH (keys with the suffix ``_numba_bvh``), the comparison
+behind that choice.
 """
 from __future__ import annotations
 
@@ -25,6 +28,7 @@ import numba  # noqa: E402
 
 from tissuerender import load_scene, make_plan  # noqa: E402
 from tissuerender.pipeline import build_world, render_hdr  # noqa: E402
+from tissuerender.render import rays  # noqa: E402
 from tissuerender.stages import StageRecorder  # noqa: E402
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "liver_probe.toml"
@@ -51,25 +55,32 @@ def main() -> None:
     result: dict = {}
     repeats = 1 if args.quick else 3
     triangles = None
-    for threads in (1, 2):
-        if threads > numba.config.NUMBA_NUM_THREADS:
-            continue
-        numba.set_num_threads(threads)
-        render_hdr(world, scene, plan, StageRecorder(), 0.0, scene.seed)  # warm-up (compilation)
-        totals, per_stage = [], {s: [] for s in STAGES}
-        for _ in range(repeats):
-            rec = StageRecorder()
-            render_hdr(world, scene, plan, rec, 0.0, scene.seed)
-            sec = dict(rec.seconds)
-            sec["shade"] = sec.get("shade", 0.0) - sec.get("shadow_rays", 0.0)  # shadow rays run inside shade
+    backends = [("embree", "")] if rays.embree_available() else []
+    backends.append(("numba", "_numba_bvh" if backends else ""))
+    result["ray_backend"] = backends[0][0]
+    for backend, suffix in backends:
+        if backend == "numba":
+            rays.embree_available = lambda: False  # the project's own BVH, for comparison
+        for threads in (1, 2):
+            if threads > numba.config.NUMBA_NUM_THREADS:
+                continue
+            numba.set_num_threads(threads)
+            render_hdr(world, scene, plan, StageRecorder(), 0.0, scene.seed)  # warm-up (compilation)
+            totals, per_stage = [], {s: [] for s in STAGES}
+            for _ in range(repeats):
+                rec = StageRecorder()
+                render_hdr(world, scene, plan, rec, 0.0, scene.seed)
+                sec = dict(rec.seconds)
+                sec["shade"] = sec.get("shade", 0.0) - sec.get("shadow_rays", 0.0)  # shadow rays run inside shade
+                for s in STAGES:
+                    per_stage[s].append(sec.get(s, 0.0))
+                totals.append(sum(sec.get(s, 0.0) for s in STAGES) + sec.get("embed", 0.0))
+            key = f"t{threads}{suffix}"
+            result[f"seconds_per_frame_{key}"] = round(statistics.median(totals), 3)
             for s in STAGES:
-                per_stage[s].append(sec.get(s, 0.0))
-            totals.append(sum(sec.get(s, 0.0) for s in STAGES) + sec.get("embed", 0.0))
-        result[f"seconds_per_frame_t{threads}"] = round(statistics.median(totals), 3)
-        for s in STAGES:
-            result[f"{s}_t{threads}"] = round(statistics.median(per_stage[s]), 3)
-        line = "  ".join(f"{s} {result[f'{s}_t{threads}']:.3f}" for s in STAGES)
-        print(f"{threads} thread(s): {result[f'seconds_per_frame_t{threads}']:.3f} s/frame  ({line})")
+                result[f"{s}_{key}"] = round(statistics.median(per_stage[s]), 3)
+            line = "  ".join(f"{s} {result[f'{s}_{key}']:.3f}" for s in STAGES)
+            print(f"{backend:6s} rays, {threads} thread(s): {result[f'seconds_per_frame_{key}']:.3f} s/frame  ({line})")
     triangles = sum(len(b.surface.triangles) for b in world.bodies) + sum(len(s.surface.triangles) for s in world.surfaces)
     result["render_triangles"] = int(triangles)
     result["machine"] = f"{platform.machine()} {os.cpu_count()} cpus"
