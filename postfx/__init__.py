@@ -1,8 +1,8 @@
 """Post-effects of the laparoscope camera (Qian §6.3.3): depth of field, chromatic aberration, tone
 mapping with sRGB encoding, and the circular scope mask.
 
-Default order (``DEFAULT_ORDER``): depth of field, chromatic aberration, bloom and blur act on
-scene-linear HDR light, as the lens does; sensor noise is added to the linear signal, as the sensor
+Default order (``DEFAULT_ORDER``): depth of field, chromatic aberration, lens flare, bloom and blur
+act on scene-linear HDR light, as the lens does; sensor noise is added to the linear signal, as the sensor
 does; the tone map then turns light into display values, which the colour grade
 shapes (curves are edited on display values, as in a grading tool), then the camera's sharpening; the
 mask comes last so
