@@ -390,48 +390,75 @@ def _layer_arrays(optics, mat):
     }
 
 
-def _shade_fused(idx, pos, n, wo, albedo, alpha, f0, sss, layered, m, rotation, stride, phase, centre, ln, eu, ev,
-                 rays, eps, radiance, rec):
-    """Direct light of the points ``idx`` through the numba passes of ``shade_kernel``, added to
-    ``radiance``; ``rays`` (the frame's ray scene) None means no shadows."""
-    from tissuerender.render.shade_kernel import light_rays, shade_direct
+def material_tables(optics):
+    """Per-material parameters for the numba shading pass (``shade_kernel.shade_direct``), indexed by the
+    G-buffer's material id."""
+    from tissuerender.render import shade_kernel as sk
+    from tissuerender.render.plastic import _coating_transmittance, internal_diffuse_reflectance
 
-    if idx.size == 0:
+    k = max(len(optics), 1)
+    kind = np.zeros(k, np.int64)
+    coat, plastic = np.zeros((k, 5)), np.zeros((k, 3))
+    coat_sigma = np.zeros((k, 3))
+    tables = [np.ones(64)]
+    for mid, o in enumerate(optics):
+        if o.bsdf == "roughplastic":
+            kind[mid] = sk.KIND_PLASTIC
+            a, eta = max(float(o.roughness), 1e-3), float(o.ior)
+            plastic[mid] = (eta, 1.0 / (1.0 - internal_diffuse_reflectance(eta, a)), len(tables))
+            tables.append(_coating_transmittance(a, eta)[1])
+        elif o.layers is not None:
+            kind[mid] = sk.KIND_LAYERED
+            st = o.layers
+            coat[mid] = (st.coat_roughness, st.coat_ior, st.coat_thickness, st.granular_weight, st.granular_roughness)
+            coat_sigma[mid] = st.coat_absorption
+
+    def column(attr, width=None):
+        values = np.array([getattr(o, attr) for o in optics], float) if optics else np.zeros(0)
+        if width:
+            values = values.reshape(-1, width)
+        out = np.zeros((k, width) if width else k)
+        out[:len(optics)] = values
+        return out
+
+    return dict(kind=kind, f0=column("f0"), k_sss=column("k_sss"), sigma=column("sigma", 3),
+                sss_colour=column("sss_colour", 3), coat=coat, coat_sigma=coat_sigma, plastic=plastic,
+                plastic_t=np.ascontiguousarray(np.stack(tables)))
+
+
+def _shade_fused(pos, n, wo, albedo, alpha, mat, thickness, rough_factor, optics, m, rotation, stride, phase, centre,
+                 ln, eu, ev, rays, eps, radiance, rec):
+    """Direct light of every point through the numba passes of ``shade_kernel``, added to ``radiance``;
+    ``rays`` (the frame's ray scene) None means no shadows."""
+    from tissuerender.render.shade_kernel import count_rays, light_rays, shade_direct
+
+    k = pos.shape[0]
+    if k == 0:
         return
-    whole = idx.size == pos.shape[0]
-
-    def pick(a):
-        return np.ascontiguousarray(a if whole else a[idx], dtype=np.float64)
-
-    k = idx.size
-    if layered is not None:
-        layer = np.ascontiguousarray(layered["mask"] if whole else layered["mask"][idx])
-        coat = np.stack([layered[key] for key in ("coat_alpha", "coat_ior", "coat_thickness", "granular_weight",
-                                                   "granular_alpha")], axis=1)
-        coat, coat_sigma = pick(coat), pick(layered["coat_sigma"])
-    else:
-        layer, coat, coat_sigma = np.zeros(k, np.bool_), np.zeros((k, 5)), np.zeros((k, 3))
-    p, nn, mm, rot = pick(pos), pick(n), np.ascontiguousarray(m if whole else m[idx], dtype=np.int64), pick(rotation)
-    ph = np.ascontiguousarray(phase if whole else phase[idx], dtype=np.int64)
-    centre, ln, eu, ev = (np.asarray(c, float) for c in (centre, ln, eu, ev))
-    offsets = np.zeros(k, np.int64)
-    np.cumsum(mm[:-1], out=offsets[1:])
-    total = int(mm.sum())
-    visible = np.ones(total, np.bool_)
+    f64 = np.float64
+    pos, n, wo, rotation = (np.ascontiguousarray(a, dtype=f64) for a in (pos, n, wo, rotation))
+    m, phase, mat = (np.ascontiguousarray(a, dtype=np.int64) for a in (m, phase, mat))
+    centre, ln, eu, ev = (np.asarray(c, f64) for c in (centre, ln, eu, ev))
+    ray_offsets = np.zeros(k, np.int64)
+    occluded = np.zeros(0, np.bool_)
     if rays is not None:
         with rec.run("shadow_rays"):
+            counts = np.empty(k, np.int64)
+            count_rays(pos, n, m, rotation, int(stride), phase, centre, ln, eu, ev, float(eps), counts)
+            np.cumsum(counts[:-1], out=ray_offsets[1:])
+            total = int(ray_offsets[-1] + counts[-1])
             origins, dirs, tfar = np.empty((total, 3), np.float32), np.empty((total, 3), np.float32), np.empty(total)
-            light_rays(p, nn, mm, offsets, rot, int(stride), ph, centre, ln, eu, ev, float(eps), origins, dirs, tfar)
-            j = np.flatnonzero(tfar > 0.0)
-            visible[j] = ~rays.occluded_rays(origins[j], dirs[j], tfar[j])
-    out = np.zeros((k, 3))
-    shade_direct(p, nn, pick(wo), pick(albedo), pick(alpha), pick(f0),
-                 pick(sss) if sss is not None else np.zeros((k, 3)), sss is not None, layer, coat, coat_sigma,
-                 mm, offsets, visible, rot, int(stride), ph, centre, ln, eu, ev, out)
-    if whole:
-        radiance += out
-    else:
-        radiance[idx] += out
+            light_rays(pos, n, m, rotation, int(stride), phase, centre, ln, eu, ev, float(eps), ray_offsets, origins,
+                       dirs, tfar)
+            occluded = np.ascontiguousarray(rays.occluded_rays(origins, dirs, tfar), dtype=np.bool_)
+    t = material_tables(optics)
+    has_sss = thickness is not None
+    shade_direct(pos, n, wo, np.ascontiguousarray(albedo, dtype=f64), np.ascontiguousarray(alpha, dtype=f64), mat,
+                 np.ascontiguousarray(thickness, dtype=f64) if has_sss else np.zeros(1), has_sss,
+                 np.ascontiguousarray(rough_factor, dtype=f64) if rough_factor is not None else np.ones(k), m,
+                 rotation, int(stride), phase, centre, ln, eu, ev, float(eps), rays is not None, ray_offsets, occluded,
+                 t["kind"], t["f0"], t["k_sss"], t["sigma"], t["sss_colour"], t["coat"], t["coat_sigma"], t["plastic"],
+                 t["plastic_t"], radiance)
 
 
 def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSettings,
@@ -468,7 +495,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
             bvh = ray_scene(P, T, settings.ray_backend)
     scale = float(np.ptp(P, axis=0).max()) if P.size else 1.0
     eps = 2e-4 * max(scale, 1e-9)  # ray offset: larger than the facet-vs-shading-normal gap (no acne)
-    sss = None
+    sss = thickness = None
     if settings.sss:
         with rec.run("thickness"):
             # inward rays start just below the surface (a small offset: a self-hit of the front face
@@ -476,11 +503,14 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
             inward = 1e-6 * max(scale, 1e-9)
             thickness = bvh.closest_hit(pos - inward * n, -n) + inward
             gbuffer["thickness"] = thickness
-            k_sss = np.array([o.k_sss for o in optics], float)[mat]
-            sigma = np.array([o.sigma for o in optics], float).reshape(-1, 3)[mat]
-            colour = np.array([o.sss_colour for o in optics], float).reshape(-1, 3)[mat]
-            transmit = np.exp(-sigma * np.where(np.isfinite(thickness), thickness, np.inf)[:, None])
-            sss = k_sss[:, None] * (colour / np.pi * transmit - albedo / np.pi)
+    # the numba passes cover every point unless the reflection cone (NumPy estimator) is asked for
+    fused = settings.fused and not light.reflection_cone
+    if settings.sss and not fused:
+        k_sss = np.array([o.k_sss for o in optics], float)[mat]
+        sigma = np.array([o.sigma for o in optics], float).reshape(-1, 3)[mat]
+        colour = np.array([o.sss_colour for o in optics], float).reshape(-1, 3)[mat]
+        transmit = np.exp(-sigma * np.where(np.isfinite(thickness), thickness, np.inf)[:, None])
+        sss = k_sss[:, None] * (colour / np.pi * transmit - albedo / np.pi)
     layered = _layer_arrays(optics, mat)
     if layered is not None and rough_factor is not None:
         layered["granular_alpha"] = layered["granular_alpha"] * rough_factor
@@ -525,14 +555,11 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
             radiance[act] += f_cos * weight[:, None]
 
         eu2, ev2 = float(eu @ eu), float(ev @ ev)
-        slow = np.arange(pos.shape[0])  # points left to the NumPy estimator below
-        if cone is None and settings.fused and pos.shape[0]:
-            fused = np.array([o.bsdf != "roughplastic" for o in optics], bool)[mat]
-            slow = np.flatnonzero(~fused)
-            _shade_fused(np.flatnonzero(fused), pos, n, wo, albedo, alpha, f0, sss, layered, m, rotation, stride,
-                         phase, centre, ln, eu, ev, bvh if settings.shadows else None, eps, radiance, rec)
-        for s in range(int(m[slow].max()) if slow.size else 0):
-            act = slow[s < m[slow]]
+        if fused:
+            _shade_fused(pos, n, wo, albedo, alpha, mat, thickness, rough_factor, optics, m, rotation, stride, phase,
+                         centre, ln, eu, ev, bvh if settings.shadows else None, eps, radiance, rec)
+        for s in range(int(m.max()) if m.size and not fused else 0):
+            act = np.flatnonzero(s < m)
             q, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev, stride, phase[act])
             if cone is not None:
                 # uniform samples landing in R' are replaced by the cone samples below (stratification)
