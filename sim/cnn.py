@@ -71,6 +71,7 @@ class CNN:
 
     def step(self, state: State, dt: float) -> State:
         h = dt / self.substeps
+        self.accel.start(state.x)
         x, t = state.x.copy(), state.t
         s = state.private.get("cnn_state", state.v).copy()  # the (unsaturated) cell state
         phi = None
@@ -90,7 +91,7 @@ class CNN:
             t += h
             self.accel.set_kinematic(x, s, t, h)
             s[self.kinematic] = (x[self.kinematic] - x_old[self.kinematic]) / h  # the target's speed
-            self.accel.check(x, t)
+            self.accel.check(x, t, h)
         private = dict(state.private)
         private["cnn_state"] = s
         if phi is not None:

@@ -74,6 +74,7 @@ def energy_density(name: str, F, mu, lam, eta=None, a0=None, vl=None):
         psi = psi + 0.5 * eta * dbar * dbar
     return psi
 KERNELS = ("numba", "numpy")
+MAX_STRETCH = 10.0  # |F|_F / sqrt(3) above this after a step: no tissue does that, the iterations failed
 
 
 class EBM:
@@ -82,6 +83,12 @@ class EBM:
     def __init__(self, model: Model, settings: dict):
         if constitutive.uses_anp(model):
             raise ValueError("ebm: average nodal pressure is not supported (element energies only)")
+        E_ratio = float(model.E.max() / model.E.min())
+        if E_ratio > 1.0 + 1e-9:
+            raise ValueError(
+                f"ebm: Young's modulus varies between elements (max/min = {E_ratio:.3g}), but the energy-balance "
+                f"increments (Zhang 5.7-5.8) do not depend on an element's stiffness scale (W_k and dW_k/dx scale "
+                f"together), so EBM cannot represent heterogeneous stiffness; use xpbd or reference")
         self.model = model
         self.iterations = int(settings.get("iterations", 100))
         self.substeps = int(settings.get("substeps", 1))
@@ -149,13 +156,16 @@ class EBM:
                 prony, a, Gamma, g)
 
     def _forces_and_energy(self, x, h):
-        """(internal forces (n, 3), total strain energy [J]) with the current viscoelastic relaxation."""
+        """(internal forces (n, 3), total strain energy [J], largest element stretch |F|_F / sqrt(3)) with the
+        current viscoelastic relaxation."""
         if self.kernel == "numpy":
             W, _, _ = self._stress(x, h)
-            return self.nodal_forces(x, h), float(np.sum(W))
+            F = constitutive.deformation_gradients(x, self.model.tets, self.model.Dm_inv)
+            stretch = float(np.sqrt(np.einsum("mij,mij->m", F, F).max() / 3.0))
+            return self.nodal_forces(x, h), float(np.sum(W)), stretch
         f = np.empty_like(x)
-        energy = ebm_kernels.forces_and_energy(np.ascontiguousarray(x), f, *self._kernel_args(h))
-        return f, float(energy)
+        energy, stretch = ebm_kernels.forces_and_energy(np.ascontiguousarray(x), f, *self._kernel_args(h))
+        return f, float(energy), float(stretch)
 
     def _commit_prony(self, x, h):
         if self.kernel == "numpy":
@@ -241,14 +251,19 @@ class EBM:
             x[kin] = target
             x = self._iterate(x, h)  # 5.7-5.9, 5.14
             v = (x - x_old) / h  # 5.15 (our reading)
-            self._account_energy(x, x_old, kin, x_kin_before, h)
+            stretch = self._account_energy(x, x_old, kin, x_kin_before, h)
+            if not stretch <= MAX_STRETCH:
+                raise SimulationDiverged(
+                    f"ebm: an element is stretched {stretch:.3g}x its rest size (|F|/sqrt(3)) at t = {t:.6g} s: the "
+                    f"energy-balance iterations no longer hold the body together; more iterations per step, "
+                    f"substeps or a smaller dt may help")
             if self.prony is not None:
                 self._commit_prony(x, h)
         return State(x=x, v=v, t=t, private=state.private)
 
     def _account_energy(self, x, x_old, kin, x_kin_before, h):
         """Accumulate the external work (trapezoidal) and record the relative energy difference."""
-        f_int, strain = self._forces_and_energy(x, h)
+        f_int, strain, stretch = self._forces_and_energy(x, h)
         load = np.zeros_like(x)
         load[kin] = -f_int[kin]  # the reaction the prescribed nodes exert on the body
         load += self.f_ext
@@ -257,3 +272,4 @@ class EBM:
         self.work_in += 0.5 * float(np.sum((load + previous) * dx))
         self._last_load_force = load
         self.red_history.append(abs(self.work_in - strain) / max(abs(self.work_in), 1e-300))
+        return stretch

@@ -243,14 +243,18 @@ def ebm_iterations(x, dx, tets, Dm_inv, volume, mu, lam, eta, fibre, code, w, no
 
 @njit(cache=True)
 def forces_and_energy(x, f, tets, Dm_inv, volume, mu, lam, eta, fibre, code, prony, relax_a, Gamma, g_sum):
-    """Internal forces ``f = -sum_k dW_k/dx`` (written into ``f``) and the total strain energy
-    ``sum_k W_k`` [J] (relaxed when ``prony``)."""
+    """Internal forces ``f = -sum_k dW_k/dx`` (written into ``f``), the total strain energy ``sum_k W_k`` [J]
+    (relaxed when ``prony``) and the largest element stretch ``max_k |F_k|_F / sqrt(3)`` (1 at rest)."""
     f[:] = 0.0
     total = 0.0
+    FF = 0.0
     for t in range(tets.shape[0]):
         W, g = _tet_energy_gradient(t, x, tets, Dm_inv, volume, mu, lam, eta, fibre, code, prony, relax_a, Gamma,
                                     g_sum)
         total += W
+        F = _defgrad(x, tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3], Dm_inv, t)
+        FF = max(FF, F[0] * F[0] + F[1] * F[1] + F[2] * F[2] + F[3] * F[3] + F[4] * F[4] + F[5] * F[5]
+                 + F[6] * F[6] + F[7] * F[7] + F[8] * F[8])
         i0, i1, i2, i3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
         f[i0, 0] += g[0] + g[3] + g[6]
         f[i0, 1] += g[1] + g[4] + g[7]
@@ -264,7 +268,22 @@ def forces_and_energy(x, f, tets, Dm_inv, volume, mu, lam, eta, fibre, code, pro
         f[i3, 0] -= g[6]
         f[i3, 1] -= g[7]
         f[i3, 2] -= g[8]
-    return total
+    return total, np.sqrt(FF / 3.0)
+
+
+@njit(cache=True)
+def count_inverted(x, tets):
+    """Number of tets with a non-positive volume, ``det(x1 - x0, x2 - x0, x3 - x0) <= 0`` (the rest tets are
+    positively oriented, so this is ``J <= 0``)."""
+    n = 0
+    for t in range(tets.shape[0]):
+        i0 = tets[t, 0]
+        ax, ay, az = x[tets[t, 1], 0] - x[i0, 0], x[tets[t, 1], 1] - x[i0, 1], x[tets[t, 1], 2] - x[i0, 2]
+        bx, by, bz = x[tets[t, 2], 0] - x[i0, 0], x[tets[t, 2], 1] - x[i0, 1], x[tets[t, 2], 2] - x[i0, 2]
+        cx, cy, cz = x[tets[t, 3], 0] - x[i0, 0], x[tets[t, 3], 1] - x[i0, 1], x[tets[t, 3], 2] - x[i0, 2]
+        if not ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx) > 0.0:
+            n += 1
+    return n
 
 
 @njit(cache=True)

@@ -26,6 +26,7 @@ class ExplicitEuler:
 
     def step(self, state: State, dt: float) -> State:
         h = dt / self.substeps
+        self.accel.start(state.x)
         x, v, t = state.x.copy(), state.v.copy(), state.t
         for _ in range(self.substeps):
             a = self.accel(x, v)
@@ -35,5 +36,5 @@ class ExplicitEuler:
             t += h
             self.accel.set_kinematic(x, v, t, h)
             v[self.kinematic] = (x[self.kinematic] - x_old[self.kinematic]) / h  # the target's speed
-            self.accel.check(x, t)
+            self.accel.check(x, t, h)
         return State(x=x, v=v, t=t, private=state.private)

@@ -52,6 +52,11 @@ class Accelerations:
         self.f_ext = model.nodal_external_force()
         extent = np.ptp(model.X, axis=0)
         self.blow_up = 100.0 * float(np.linalg.norm(extent)) + 1.0  # displacement that means divergence [m]
+        self._tets = np.ascontiguousarray(model.tets, dtype=np.int64)
+        self.inverted_at_start = None  # elements inverted in the first state stepped from (they may recover)
+        edges = model.X[model.tets[:, [1, 2, 3, 2, 3, 3]]] - model.X[model.tets[:, [0, 0, 0, 1, 1, 2]]]
+        wave_speed = np.sqrt((model.lam + 2.0 * model.mu) / model.density)  # dilatational, per tet
+        self.critical_step = float((np.linalg.norm(edges, axis=2).min(axis=1) / wave_speed).min())  # Zhang 5.12
 
     def __call__(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         if self._kernel_args is not None:
@@ -68,14 +73,33 @@ class Accelerations:
         a[self.kinematic] = 0.0
         return a
 
-    def check(self, x: np.ndarray, t: float) -> None:
-        """Raise SimulationDiverged for non-finite or runaway positions (never return NaN frames)."""
+    def start(self, x: np.ndarray) -> None:
+        """Note how many elements are inverted in the first state the integrator steps from."""
+        if self.inverted_at_start is None:
+            self.inverted_at_start = int(ebm_kernels.count_inverted(np.ascontiguousarray(x, dtype=np.float64),
+                                                                    self._tets))
+
+    def check(self, x: np.ndarray, t: float, h: float | None = None) -> None:
+        """Raise SimulationDiverged for non-finite or runaway positions (never return NaN frames), and when
+        (constitutive force model) elements invert that were not inverted at the start: with a step above
+        the explicit critical step the CNN's saturation keeps the motion bounded, but elements folding
+        through themselves are outside what the nonlinear material describes (Zhang 5.35 is undefined for
+        J <= 0)."""
         if not np.isfinite(x).all():
             raise SimulationDiverged(f"{self.who}: non-finite positions at t = {t:.6g} s; reduce dt")
         worst = float(np.abs(x - self.model.X).max())
         if worst > self.blow_up:
             raise SimulationDiverged(f"{self.who}: displacement {worst:.3g} m at t = {t:.6g} s exceeds 100x the "
                                      f"body's size: the integration diverged; reduce dt")
+        if self.force_model != "constitutive":
+            return  # linear FEM forces are linear in x: an inverted element is only a large displacement there
+        inverted = int(ebm_kernels.count_inverted(np.ascontiguousarray(x, dtype=np.float64), self._tets))
+        if inverted > (self.inverted_at_start or 0):
+            step = "" if h is None else f"the step {h:.3g} s against "
+            raise SimulationDiverged(
+                f"{self.who}: the integration diverged: {inverted} elements inverted at t = {t:.6g} s "
+                f"({self.inverted_at_start or 0} at the start); compare {step}the explicit critical step "
+                f"{self.critical_step:.3g} s (Zhang 5.12) and reduce dt or add substeps")
 
     def set_kinematic(self, x: np.ndarray, v: np.ndarray, t: float, h: float) -> None:
         """Place fixed and prescribed nodes at their targets at ``t``, moving with their targets' speed

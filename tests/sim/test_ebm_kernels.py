@@ -64,7 +64,7 @@ def test_ebm_kernels_reproduce_numpy(name, fibre, prony):
         ebm = EBM(model, {"iterations": 8, "kernel": kernel})
         assert ebm.kernel == kernel
         x = _strained(model)
-        f, energy = ebm._forces_and_energy(x, 0.01)
+        f, energy, _ = ebm._forces_and_energy(x, 0.01)
         x_swept = ebm._iterate(x.copy(), 0.01)
         state = State(x=x, v=np.zeros_like(x))
         for _ in range(3):  # prediction, iterations, velocities, RED, Prony history
