@@ -501,7 +501,14 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
             # inward rays start just below the surface (a small offset: a self-hit of the front face
             # is at t ~ 0, while a thin layer's back face may be closer than the shadow-ray offset)
             inward = 1e-6 * max(scale, 1e-9)
-            thickness = bvh.closest_hit(pos - inward * n, -n) + inward
+            # exp(-sigma T) < 1e-4 beyond T = ln(1e4) / sigma: the rays stop there (thickness inf), which
+            # prunes most of the traversal through a large organ and changes no visible value
+            sigmas = [min(o.sigma) for o in optics if o.k_sss > 0.0 and o.bsdf != "roughplastic"]
+            reach = np.log(1e4) / max(min(sigmas), 1e-9) if sigmas else 0.0
+            if reach > 0.0:
+                thickness = bvh.closest_hit(pos - inward * n, -n, reach) + inward
+            else:
+                thickness = np.full(pos.shape[0], np.inf)  # no material scatters below its surface
             gbuffer["thickness"] = thickness
     # the numba passes cover every point unless the reflection cone (NumPy estimator) is asked for
     fused = settings.fused and not light.reflection_cone
