@@ -2,7 +2,8 @@
 
 Beam 2 m x 0.2 m x 0.2 m, x = 0 face fixed, gravity, E = 3000 Pa, nu = 0.49, rho = 1000, at 3,840 and
 30,720 tets (6 tets per hex cell), 10 substeps x 10 iterations, with 1 and 2 numba threads, for every
-registered integrator that can be built. Compilation is excluded (one warm-up step first).
+registered integrator that can be built. Compilation is excluded (one warm-up step first); each figure
+is the median of 3 (``--quick``) or 5 timed runs.
 
 Usage: .venv/bin/python benchmarks/sim_throughput.py [--quick]
 The last line of output is one flat JSON object, e.g. {"xpbd_30720_t1": 3.1e7, ...}.
@@ -34,15 +35,19 @@ def beam_model(cells) -> Model:
     return model
 
 
-def measure(name: str, model: Model, steps: int, dt: float = 1e-3) -> float:
+def measure(name: str, model: Model, steps: int, repeats: int = 1, dt: float = 1e-3) -> float:
+    """Median over ``repeats`` timed runs of ``steps`` steps (the machine is shared: one run can be
+    slowed by other processes, the median of several is a steadier figure)."""
     integrator = make_integrator(name, model, {"substeps": 10, "iterations": 10})
     state = integrator.step(State.at_rest(model), dt)  # warm-up: compilation
-    start = time.perf_counter()
-    for _ in range(steps):
-        state = integrator.step(state, dt)
-    elapsed = time.perf_counter() - start
     iterations = 10 if name in ITERATIVE else 1  # explicit and CNN evaluate each tet once per substep
-    return model.n_tets * 10 * iterations * steps / elapsed
+    rates = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(steps):
+            state = integrator.step(state, dt)
+        rates.append(model.n_tets * 10 * iterations * steps / (time.perf_counter() - start))
+    return float(np.median(rates))
 
 
 def main() -> None:
@@ -50,6 +55,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="fewer steps")
     args = parser.parse_args()
     steps = {3840: 3 if args.quick else 20, 30720: 1 if args.quick else 5}
+    repeats = 3 if args.quick else 5
     result: dict = {}
     skipped = []
     max_threads = numba.config.NUMBA_NUM_THREADS
@@ -67,7 +73,7 @@ def main() -> None:
                 if threads > max_threads:
                     continue
                 numba.set_num_threads(threads)
-                rate = measure(name, model, steps[n_tets])
+                rate = measure(name, model, steps[n_tets], repeats)
                 result[f"{name}_{n_tets}_t{threads}"] = float(f"{rate:.4g}")
                 print(f"{name:9s} {n_tets:6d} tets  {threads} thread(s): {rate / 1e6:8.2f} M tet-constraint it/s")
     result["skipped"] = skipped

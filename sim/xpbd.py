@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from sim import xpbd_kernels as kernels
-from sim.coloring import colour_tets
+from sim.coloring import colour_tets, split_into_domains
 from sim.integrators import SimulationDiverged
 from sim.model import Model, State
 from sim.probe import resolve_contact
@@ -54,8 +54,18 @@ class XPBD:
             raise ValueError(f"xpbd coupling must be 'coupled' or 'sequential', found {coupling!r}")
         self.mode = 1 if coupling == "coupled" else 0
         m = model
-        # Per-tet data is stored in colour order, so each colour is a contiguous range read sequentially.
-        colours = colour_tets(np.ascontiguousarray(m.tets, dtype=np.int64), m.n_nodes)
+        # Per-tet data is stored in colour order, so each colour is a contiguous range read sequentially:
+        # the colours of each domain's interior, then the separator's (see split_into_domains).
+        self.domains = int(settings.get("domains", numba.config.NUMBA_NUM_THREADS))
+        if self.domains < 1:
+            raise ValueError(f"xpbd domains must be >= 1, found {self.domains}")
+        tets = np.ascontiguousarray(m.tets, dtype=np.int64)
+        colours, domain_colour = [], [0]
+        for part in split_into_domains(m.X, tets, self.domains):
+            if part.size:
+                colours += [part[c] for c in colour_tets(tets[part], m.n_nodes)]
+            domain_colour.append(len(colours))
+        self.domain_colour = np.array(domain_colour, dtype=np.int64)
         order = np.concatenate(colours).astype(np.int64)
         self.tet_order = order
         self.colour_start = np.concatenate([[0], np.cumsum([c.size for c in colours])]).astype(np.int64)
@@ -117,8 +127,8 @@ class XPBD:
                 inv_dt2, self.mode)
         if self.blocks is not None:
             node_index, params, lanes_used, colour_block = self.blocks
-            kernels.gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, inv_dt2, self.mode,
-                                         iterations, numba.get_num_threads())
+            kernels.gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, self.domain_colour,
+                                         inv_dt2, self.mode, iterations, numba.get_num_threads())
         elif self.solver == "gauss_seidel":
             kernels.gauss_seidel(*args, self.colour_start, iterations)
         else:

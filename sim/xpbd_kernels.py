@@ -242,6 +242,7 @@ def strain_limit(x, tets, axes, w, smin, smax, colour_start):
 # ---------------------------------------------------------------------------------------------------
 
 LANES = 16  # tets per block; LLVM vectorises the lane loop with 8-wide zmm (4-wide ymm on AVX2)
+VECTOR = 8  # the lane loop of a colour's last, partly filled block stops at a multiple of this
 # rows of a block's parameter array (each row holds LANES values)
 ROW_B = 0  # 9 rows: b_k[c] at ROW_B + 3 (k - 1) + c, k = 1..3
 ROW_M = 9  # 6 rows: M00 M01 M02 M11 M12 M22
@@ -426,14 +427,14 @@ def _sym_adjugate(S):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
-def _project_lanes_coupled(p, s, inv_dt2):
+def _project_lanes_coupled(p, s, lanes, inv_dt2):
     """Coupled 2x2 projection of all lanes of one block (``p``: its parameters, ``s``: scratch with the
     gathered edges; writes the node corrections to ``s``). With S = F^T F:
     a11 = <M, S> / |F|^2 + alpha~_D, a12 = det F tr M / |F| (F^T cof F = det F I),
     a22 = <M, adj S> + alpha~_H (cof F^T cof F = adj S). Branch-free so the lane loop vectorises:
     degenerate tets (|F| < 1e-12 or a singular 2x2 system) get zero corrections, as in project_tet.
     fastmath: only "contract" (fused multiply-add), which changes rounding only."""
-    for l in range(LANES):
+    for l in range(lanes):
         b = _lane_b(p, l)
         F = _lane_defgrad(s, b, l)
         M = _lane_M(p, l)
@@ -466,11 +467,11 @@ def _project_lanes_coupled(p, s, inv_dt2):
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
-def _project_lanes_in_turn(p, s, inv_dt2):
+def _project_lanes_in_turn(p, s, lanes, inv_dt2):
     """Deviatoric then hydrostatic projection (mode 0) of all lanes of one block; the hydrostatic step
     sees F after the deviatoric step, F + d1 (F M) / |F|. Branch-free; zero corrections where
     project_tet returns early. fastmath: only "contract"."""
-    for l in range(LANES):
+    for l in range(lanes):
         b = _lane_b(p, l)
         F = _lane_defgrad(s, b, l)
         M = _lane_M(p, l)
@@ -508,23 +509,42 @@ def _project_blocks(x, node_index, params, lanes_used, first, last, inv_dt2, mod
         idx = node_index[blk]
         p = params[blk]
         n = lanes_used[blk]
+        lanes = min((n + VECTOR - 1) // VECTOR * VECTOR, LANES)  # whole vectors: the tail lanes are padding
         _gather(xf, idx, n, scratch)
         if mode == 1:
-            _project_lanes_coupled(p, scratch, inv_dt2)
+            _project_lanes_coupled(p, scratch, lanes, inv_dt2)
         else:
-            _project_lanes_in_turn(p, scratch, inv_dt2)
+            _project_lanes_in_turn(p, scratch, lanes, inv_dt2)
         _scatter(xf, idx, n, scratch)
 
 
 @njit(cache=True, parallel=True)
-def gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, inv_dt2, mode, iterations, n_threads):
+def gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, domain_colour, inv_dt2, mode, iterations,
+                         n_threads):
     """``iterations`` coloured Gauss–Seidel sweeps over the block layout of :func:`pack_blocks`
-    (colour c is blocks ``colour_block[c]:colour_block[c+1]``); the blocks of a colour are split
-    into one contiguous chunk for each of ``n_threads`` threads (``numba.get_num_threads()``; inside
-    the kernel it would stop the cache). Same result as :func:`gauss_seidel` up to rounding."""
+    (colour c is blocks ``colour_block[c]:colour_block[c+1]``). Colours
+    ``domain_colour[d]:domain_colour[d+1]`` are domain d's interior (``sim.coloring.split_into_domains``),
+    the last range the separator. Domain interiors share no node: with several threads each sweeps
+    its own colours without waiting for the others (one parallel launch per sweep instead of one
+    per colour), then the separator's colours follow, each split into one chunk per thread when
+    large. ``n_threads`` is ``numba.get_num_threads()`` (inside the kernel it would stop the cache).
+    The order does not depend on ``n_threads``; the result is :func:`gauss_seidel`'s up to rounding."""
+    n_domains = domain_colour.shape[0] - 2
     scratch = np.zeros(N_SCRATCH * LANES)
     for _ in range(iterations):
-        for c in range(colour_block.shape[0] - 1):
+        first_shared = 0  # first colour swept colour by colour (all of them with a single domain)
+        if n_domains > 1:
+            first_shared = domain_colour[n_domains]
+            if n_threads > 1:
+                for d in prange(n_domains):
+                    own = np.zeros(N_SCRATCH * LANES)
+                    for c in range(domain_colour[d], domain_colour[d + 1]):
+                        _project_blocks(x, node_index, params, lanes_used, colour_block[c], colour_block[c + 1],
+                                        inv_dt2, mode, own)
+            else:
+                _project_blocks(x, node_index, params, lanes_used, 0, colour_block[first_shared], inv_dt2, mode,
+                                scratch)
+        for c in range(first_shared, colour_block.shape[0] - 1):
             lo = colour_block[c]
             hi = colour_block[c + 1]
             chunks = min(n_threads, (hi - lo) // MIN_BLOCKS_PER_THREAD)

@@ -2,10 +2,12 @@
 kernel (``project_tet``): same positions after several steps, up to rounding."""
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 
 from sim import xpbd_kernels as kernels
+from sim.coloring import split_into_domains
 from sim.mesh import procedural, select
 from sim.model import Model, State
 from sim.probe import Probe
@@ -39,10 +41,11 @@ def _run(model, steps, **settings):
 
 
 @pytest.mark.parametrize("coupling", ["coupled", "sequential"])
-@pytest.mark.parametrize("case", ["probe", "beam"])
-def test_blocked_kernel_matches_the_scalar_per_tet_kernel(coupling, case):
+@pytest.mark.parametrize("case, domains", [("probe", 1), ("probe", 2), ("beam", 1), ("beam", 3)])
+def test_blocked_kernel_matches_the_scalar_per_tet_kernel(coupling, case, domains):
     model = _slab_with_probe() if case == "probe" else _hanging_beam()
     extra = {"damping": 5.0, "strain_max": 1.05} if case == "probe" else {}
+    extra["domains"] = domains
     blocked = _run(model, 8, coupling=coupling, kernel="blocked", **extra)
     scalar = _run(model, 8, coupling=coupling, kernel="scalar", **extra)
     moved = np.abs(scalar - model.X).max()
@@ -52,9 +55,10 @@ def test_blocked_kernel_matches_the_scalar_per_tet_kernel(coupling, case):
     assert np.array_equal(blocked[fixed], model.X[fixed])  # w = 0 nodes are not moved by either kernel
 
 
-def test_block_layout_holds_every_tet_once_and_no_node_twice_per_colour():
+@pytest.mark.parametrize("domains", [1, 2])
+def test_block_layout_holds_every_tet_once_and_no_node_twice_per_colour(domains):
     model = _hanging_beam()
-    xpbd = XPBD(model, {})
+    xpbd = XPBD(model, {"domains": domains})
     node_index, params, lanes_used, colour_block = xpbd.blocks
     L = kernels.LANES
     seen = []
@@ -84,5 +88,31 @@ def test_degenerate_tet_gets_no_correction_in_either_kernel():
     xpbd = XPBD(model, {})
     x = np.zeros_like(model.X)
     node_index, params, lanes_used, colour_block = xpbd.blocks
-    kernels.gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, 1e4, 1, 3, 1)
+    kernels.gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, xpbd.domain_colour, 1e4, 1, 3, 1)
     assert np.array_equal(x, np.zeros_like(model.X))
+
+
+def test_domain_interiors_share_no_node_and_the_separator_is_thin():
+    model = _hanging_beam()
+    parts = split_into_domains(model.X, model.tets, 3)
+    assert sum(p.size for p in parts) == model.n_tets
+    nodes = [set(model.tets[p].ravel()) for p in parts[:-1]]
+    for a in range(3):
+        for b in range(a + 1, 3):
+            assert not nodes[a] & nodes[b]
+    sizes = np.array([p.size for p in parts[:-1]])
+    assert parts[-1].size <= 0.1 * model.n_tets  # two cell layers of 24
+    assert sizes.max() <= 1.2 * sizes.min()
+
+
+def test_two_threads_give_the_one_thread_result_bit_for_bit():
+    model = _hanging_beam()
+    previous = numba.get_num_threads()
+    try:
+        results = []
+        for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(threads)
+            results.append(_run(model, 3, domains=2))
+    finally:
+        numba.set_num_threads(previous)
+    assert np.array_equal(results[0], results[1])
