@@ -50,18 +50,26 @@ def _coating(n_l, n_v, n_h, v_h, alpha, eta):
 TABLE_SIZE = 64  # cosines 0 ... 1, evenly spaced (Mitsuba's grid for the same tables)
 
 
-@functools.lru_cache(maxsize=32)
-def _coating_albedo(alpha: float, eta: float, n_samples: int = 256):
-    """(mu grid, E_spec(mu)): the rough coating's directional albedo by stratified GGX sampling."""
-    mus = np.maximum(np.arange(TABLE_SIZE) / (TABLE_SIZE - 1.0), 1e-6)
-    n_mu = TABLE_SIZE
+def _table_cosines():
+    return np.maximum(np.arange(TABLE_SIZE) / (TABLE_SIZE - 1.0), 1e-6)
+
+
+def _stratified_ggx_normals(alpha: float, n_samples: int):
+    """n_samples^2 microfacet normals drawn from D(m) (n.m) on a stratified grid."""
     g = (np.arange(n_samples) + 0.5) / n_samples
     u, v = np.meshgrid(g, g, indexing="ij")
     u, v = u.ravel(), v.ravel()
     cos_h = np.sqrt((1.0 - u) / (1.0 + (alpha * alpha - 1.0) * u))
     sin_h = np.sqrt(np.maximum(1.0 - cos_h * cos_h, 0.0))
-    h = np.stack([sin_h * np.cos(2 * np.pi * v), sin_h * np.sin(2 * np.pi * v), cos_h], axis=1)
-    albedo = np.empty(n_mu)
+    return np.stack([sin_h * np.cos(2 * np.pi * v), sin_h * np.sin(2 * np.pi * v), cos_h], axis=1)
+
+
+@functools.lru_cache(maxsize=32)
+def _coating_albedo(alpha: float, eta: float, n_samples: int = 256):
+    """(mu grid, E_spec(mu)): the rough coating's directional albedo by stratified GGX sampling."""
+    mus = _table_cosines()
+    h = _stratified_ggx_normals(alpha, n_samples)
+    albedo = np.empty(TABLE_SIZE)
     for k, mu in enumerate(mus):
         wo = np.array([np.sqrt(1.0 - mu * mu), 0.0, mu])
         v_h = h @ wo
@@ -89,13 +97,8 @@ def _coating_transmittance(alpha: float, eta: float, n_samples: int = 256):
     refracted through the facet m (as Mitsuba 3's ``eval_transmittance``). The masking of the refracted
     direction makes it smaller than 1 - E_spec(mu): light the coating neither reflects nor transmits
     is the energy the single-scattering microfacet model loses."""
-    mus = np.maximum(np.arange(TABLE_SIZE) / (TABLE_SIZE - 1.0), 1e-6)
-    g = (np.arange(n_samples) + 0.5) / n_samples
-    u, v = np.meshgrid(g, g, indexing="ij")
-    u, v = u.ravel(), v.ravel()
-    cos_h = np.sqrt((1.0 - u) / (1.0 + (alpha * alpha - 1.0) * u))
-    sin_h = np.sqrt(np.maximum(1.0 - cos_h * cos_h, 0.0))
-    m = np.stack([sin_h * np.cos(2 * np.pi * v), sin_h * np.sin(2 * np.pi * v), cos_h], axis=1)
+    mus = _table_cosines()
+    m = _stratified_ggx_normals(alpha, n_samples)
     out = np.empty(TABLE_SIZE)
     for k, mu in enumerate(mus):
         wi = np.array([np.sqrt(1.0 - mu * mu), 0.0, mu])
