@@ -19,6 +19,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from sim import xpbd_blocked as blocked
 from sim import xpbd_kernels as kernels
 from sim.coloring import colour_tets, split_into_domains
 from sim.integrators import SimulationDiverged
@@ -33,7 +34,11 @@ class XPBD:
     ``strain_max``: hard unilateral limits on the stretch |F a| along the rest frame's axes and the
     fibre (Qian 4.3.4, eq. 4.21 on stretches), projected after every sweep; ``material``:
     "stable_neo_hookean" (default, the numba kernels with the model's mu and lambda) or "model" (the
-    model's own energy as C = sqrt(2 V Psi), ``sim.xpbd_energy``)."""
+    model's own energy as C = sqrt(2 V Psi), ``sim.xpbd_energy``); ``kernel`` (Gauss–Seidel):
+    "blocked" (default, tets of a colour projected 16 at a time by a vectorised loop) or "scalar"
+    (the per-tet reference ``project_tet``; same positions up to rounding); ``domains`` (default: the
+    numba thread count at start-up): slabs whose interiors are swept concurrently, one per thread,
+    before the separator layer between them (the result does not depend on the threads used)."""
 
     name = "xpbd"
 
@@ -83,7 +88,7 @@ class XPBD:
             raise ValueError(f"xpbd kernel must be 'blocked' or 'scalar', found {self.kernel!r}")
         self.blocks = None
         if self.solver == "gauss_seidel" and self.kernel == "blocked":
-            self.blocks = kernels.pack_blocks(self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd,
+            self.blocks = blocked.pack_blocks(self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd,
                                               self.gamma, self.colour_start)
         self.energy = None
         material = settings.get("material", "stable_neo_hookean")
@@ -127,7 +132,7 @@ class XPBD:
                 inv_dt2, self.mode)
         if self.blocks is not None:
             node_index, params, lanes_used, colour_block = self.blocks
-            kernels.gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, self.domain_colour,
+            blocked.gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, self.domain_colour,
                                          inv_dt2, self.mode, iterations, numba.get_num_threads())
         elif self.solver == "gauss_seidel":
             kernels.gauss_seidel(*args, self.colour_start, iterations)
@@ -150,7 +155,7 @@ class XPBD:
             lam_dev[:] = 0.0
             lam_hyd[:] = 0.0
             if self.blocks is not None:
-                kernels.reset_multipliers(self.blocks[1])
+                blocked.reset_multipliers(self.blocks[1])
             # with probes or strain limits, those are resolved after every sweep; else one call does all
             per_call = 1 if (m.probes or self.strain_limits is not None) else self.iterations
             for _ in range(self.iterations // per_call):
