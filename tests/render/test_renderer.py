@@ -341,3 +341,15 @@ def test_embree_and_numba_bvh_answer_the_same_ray_queries():
     assert (np.isfinite(t_ours) != np.isfinite(t_embree)).mean() < 1e-3 and both.mean() > 0.1
     np.testing.assert_allclose(t_embree[both], t_ours[both], atol=1e-5)
     assert np.all(np.isinf(ours.closest_hit(origins, dirs, 1e-4)[t_ours > 1e-4]))  # a miss within t_max is inf
+
+
+def test_box_downsample_averages_blocks_and_keeps_the_nearest_depth():
+    from tissuerender.render.raster import box_downsample
+
+    rng = np.random.default_rng(3)
+    hdr = rng.random((8, 12, 3)).astype(np.float32)
+    depth = rng.random((8, 12)).astype(np.float32)
+    depth[0, 0] = np.inf
+    out, d = box_downsample(hdr, depth, 2)
+    np.testing.assert_allclose(out, hdr.reshape(4, 2, 6, 2, 3).mean(axis=(1, 3)), rtol=1e-6)
+    assert np.array_equal(d, depth.reshape(4, 2, 6, 2).min(axis=(1, 3)))

@@ -16,7 +16,7 @@ import functools
 from pathlib import Path
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 TILE = 64
 SIGMA = 1.5
@@ -134,11 +134,24 @@ def generate(size: int, seed: int) -> np.ndarray:
     return _void_and_cluster(initial.reshape(size, size), kernel)
 
 
-def rotations(rows: np.ndarray, cols: np.ndarray, seed: int) -> np.ndarray:
-    """(k, 2) Cranley–Patterson offsets for pixels (rows, cols): two independent blue-noise tiles, each
-    shifted by a per-seed uniform offset (so frames with different seeds differ, and each pixel's offset
-    stays uniform)."""
+@njit(cache=True, parallel=True)
+def _lookup(rows, cols, ss, a, b, shift, out, phase):
+    n = a.shape[0]
+    for k in prange(rows.shape[0]):
+        r, c = rows[k] // ss, cols[k] // ss
+        out[k, 0] = (a[r % n, c % n] + shift[0]) % 1.0
+        out[k, 1] = (b[r % n, c % n] + shift[1]) % 1.0
+        phase[k] = (rows[k] % ss) * ss + cols[k] % ss
+
+
+def rotations(rows: np.ndarray, cols: np.ndarray, seed: int, ss: int = 1):
+    """(k, 2) Cranley–Patterson offsets for the pixels holding raster samples (rows, cols) of an image
+    supersampled ss x ss: two independent blue-noise tiles, each shifted by a per-seed uniform offset (so
+    frames with different seeds differ, and each pixel's offset stays uniform); and each sample's index
+    in its pixel, 0 ... ss^2 - 1."""
     shift = np.random.default_rng(np.random.SeedSequence([seed, 0xB1])).random(2)
-    a, b = texture(TILE, 0), texture(TILE, 1)
-    r, c = rows % TILE, cols % TILE
-    return np.mod(np.column_stack([a[r, c], b[r, c]]) + shift, 1.0)
+    out = np.empty((rows.shape[0], 2))
+    phase = np.empty(rows.shape[0], np.int64)
+    _lookup(np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(cols, dtype=np.int64), int(ss),
+            texture(TILE, 0), texture(TILE, 1), shift, out, phase)
+    return out, phase

@@ -23,7 +23,7 @@ import materials
 from tissuerender.render.brdf import layered_reflectance_cos, reflectance_cos
 from tissuerender.render.plastic import roughplastic_cos
 from tissuerender.render.rays import ray_scene
-from tissuerender.render.raster import camera_basis, interpolate_gbuffer, rasterize_objects
+from tissuerender.render.raster import box_downsample, camera_basis, interpolate_gbuffer, rasterize_objects
 from tissuerender.stages import StageRecorder, recorder_or_new
 
 ADAPTIVE_DISTANCES = (0.08, 0.16)  # [m] thresholds of m(d)
@@ -193,8 +193,8 @@ def sample_offsets(rows: np.ndarray, cols: np.ndarray, ss: int, pattern: str, se
         raise ValueError(f"light pattern must be 'blue_noise' or 'white_noise', found {pattern!r}")
     from tissuerender.render import bluenoise
 
-    rotation = bluenoise.rotations(rows // ss, cols // ss, seed)
-    return rotation, ss * ss, ((rows % ss) * ss + cols % ss).astype(np.int64)
+    rotation, phase = bluenoise.rotations(rows, cols, seed, ss)
+    return rotation, ss * ss, phase
 
 
 def cone_angle(alpha: np.ndarray) -> np.ndarray:
@@ -527,7 +527,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         if light.sampling == "importance":
             m = importance_counts(pos, light)
         else:
-            m = sample_counts(np.linalg.norm(pos - centre, axis=1), light)
+            m = sample_counts(np.sqrt(np.einsum("ij,ij->i", pos - centre, pos - centre)), light)
         gbuffer["light_samples"] = m
         rotation, stride, phase = sample_offsets(jj, ii, ss, light.pattern, settings.seed)
         radiance = np.zeros((pos.shape[0], 3))
@@ -618,6 +618,5 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         hdr[jj, ii] = np.maximum(radiance, 0.0).astype(np.float32)
     out_depth = depth.astype(np.float32)
     if ss > 1:
-        hdr = hdr.reshape(H // ss, ss, W // ss, ss, 3).mean(axis=(1, 3)).astype(np.float32)
-        out_depth = out_depth.reshape(H // ss, ss, W // ss, ss).min(axis=(1, 3))
+        hdr, out_depth = box_downsample(hdr, out_depth, ss)
     return FrameResult(hdr=hdr, depth=out_depth, gbuffer=gbuffer, stage_seconds=dict(rec.seconds))

@@ -3,6 +3,7 @@ pinhole camera and keep, per pixel, the nearest triangle and its perspective-cor
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -16,17 +17,32 @@ def camera_basis(position, look_at, up):
     return r, np.cross(r, f), f
 
 
-@njit(cache=True)
-def rasterize(sx, sy, zv, tris, width, height, near, depth, tri_id, bary):
+@njit(cache=True, parallel=True)
+def rasterize(sx, sy, zv, tris, width, height, near, depth, tri_id, bary, bands=1):
     """Z-buffer raster of triangles with screen positions ``sx, sy`` and view depths ``zv``.
 
     Writes per pixel the nearest view depth, the triangle id and perspective-correct barycentrics
     (weights ``b_i / z_i`` renormalised). Triangles with a vertex in front of ``near`` are skipped.
+    The image is split into horizontal bands rasterised in parallel; each band visits the triangles in
+    the same order, so every pixel gets the same result as a serial raster (ties keep the first).
     """
+    bands = max(1, min(height, bands))
+    for band in prange(bands):
+        row0 = band * height // bands
+        row1 = (band + 1) * height // bands - 1
+        _raster_rows(sx, sy, zv, tris, width, row0, row1, near, depth, tri_id, bary)
+
+
+@njit(cache=True)
+def _raster_rows(sx, sy, zv, tris, width, row0, row1, near, depth, tri_id, bary):
     # vertices that clipping put on the near plane may land a rounding error in front of it
     limit = near * (1.0 - 1e-9)
     for t in range(tris.shape[0]):
         a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+        y_lo = min(sy[a], sy[b], sy[c])
+        y_hi = max(sy[a], sy[b], sy[c])
+        if y_hi < row0 or y_lo > row1 + 1:
+            continue
         if zv[a] < limit or zv[b] < limit or zv[c] < limit:
             continue
         x0, y0, x1, y1, x2, y2 = sx[a], sy[a], sx[b], sy[b], sx[c], sy[c]
@@ -35,8 +51,8 @@ def rasterize(sx, sy, zv, tris, width, height, near, depth, tri_id, bary):
             continue
         i0 = max(int(np.floor(min(x0, x1, x2))), 0)
         i1 = min(int(np.ceil(max(x0, x1, x2))), width - 1)
-        j0 = max(int(np.floor(min(y0, y1, y2))), 0)
-        j1 = min(int(np.ceil(max(y0, y1, y2))), height - 1)
+        j0 = max(int(np.floor(y_lo)), row0)
+        j1 = min(int(np.ceil(y_hi)), row1)
         for j in range(j0, j1 + 1):
             py = j + 0.5
             for i in range(i0, i1 + 1):
@@ -78,7 +94,8 @@ def rasterize_objects(points: np.ndarray, triangles: np.ndarray, camera, width: 
     tri_id = np.full((height, width), -1, np.int64)
     bary = np.zeros((height, width, 3))
     if triangles.shape[0]:
-        rasterize(sx, sy, zv, triangles, width, height, float(camera.near), depth, tri_id, bary)
+        rasterize(sx, sy, zv, triangles, width, height, float(camera.near), depth, tri_id, bary,
+                  4 * numba.get_num_threads())
     far = depth > camera.far
     depth[far], tri_id[far] = np.inf, -1
     return depth, tri_id, bary
@@ -120,3 +137,34 @@ def interpolate_gbuffer(points, normals, triangles, tri_id, bary, camera_positio
                  np.ascontiguousarray(triangles, dtype=np.int64), tri_id, bary, jj, ii,
                  np.asarray(camera_position, float), pos, n, wo, tri)
     return jj, ii, pos, n, wo, tri
+
+
+@njit(cache=True, parallel=True)
+def _downsample(hdr, depth, ss, out, out_depth):
+    inv = 1.0 / (ss * ss)
+    for j in prange(out.shape[0]):
+        for i in range(out.shape[1]):
+            r = 0.0
+            g = 0.0
+            b = 0.0
+            d = np.inf
+            for a in range(ss):
+                for c in range(ss):
+                    r += hdr[j * ss + a, i * ss + c, 0]
+                    g += hdr[j * ss + a, i * ss + c, 1]
+                    b += hdr[j * ss + a, i * ss + c, 2]
+                    d = min(d, depth[j * ss + a, i * ss + c])
+            out[j, i, 0] = r * inv
+            out[j, i, 1] = g * inv
+            out[j, i, 2] = b * inv
+            out_depth[j, i] = d
+
+
+def box_downsample(hdr: np.ndarray, depth: np.ndarray, ss: int):
+    """Average ss x ss blocks of a supersampled HDR image (box filter; float32 out) and keep the nearest
+    depth of each block."""
+    h, w = hdr.shape[0] // ss, hdr.shape[1] // ss
+    out = np.empty((h, w, 3), np.float32)
+    out_depth = np.empty((h, w), depth.dtype)
+    _downsample(hdr, depth, ss, out, out_depth)
+    return out, out_depth
