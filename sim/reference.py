@@ -148,10 +148,13 @@ class ReferenceIntegrator:
             if np.linalg.norm(g) <= self.tol * scale:
                 self.last_iterations, self.last_residual = it, float(np.linalg.norm(g) / scale)
                 return x
-            # The exact Hessian gives quadratic convergence; where it is indefinite (compressed stable
-            # Neo-Hookean elements) its step may not descend, and the PSD-projected one is used.
+            # The exact Hessian gives quadratic convergence near a minimum; where it is indefinite
+            # (compressed stable Neo-Hookean elements) its step may not descend, and the PSD-projected
+            # one is used. Far from equilibrium (tangled or inverted starts) the projected Hessian goes
+            # first: its steps head for the rest shape instead of stalling in a tangled saddle region.
             dx = None
-            for project in (False, True):
+            far = np.linalg.norm(g) > 1e-3 * scale
+            for project in ((True, False) if far else (False, True)):
                 K = self._hessian(x, h, project)[free][:, free]
                 K = K + sp.diags(np.full(K.shape[0], 1e-12 * max(abs(K.diagonal()).max(), 1e-300)))
                 candidate = -spsolve(K.tocsc(), g)

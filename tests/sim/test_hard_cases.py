@@ -89,14 +89,11 @@ def test_twenty_percent_inverted_tets_recover(integrator):
         state = ReferenceIntegrator(model, {"mode": "quasistatic"}).step(state, 1.0)
     J = _jacobians(model, state.x)
     assert J.min() > 0.5  # every tet recovered
-    if integrator == "xpbd":
-        # no load: back to the rest shape
-        assert np.abs(state.x - mesh.points).max() < 1e-3
-    else:
-        # Newton descends to the nearest minimum: from this scrambled start a tangled but uninverted
-        # local minimum (positive-definite Hessian, 83 J against 25 kJ at the start) — stable
-        # Neo-Hookean is not convex, and the reference does not search for the global minimum
-        assert constitutive.elastic_energy(model, state.x) < 0.01 * constitutive.elastic_energy(model, x0)
+    # no load: back to the rest shape. Stable Neo-Hookean is not convex; the reference reaches the rest
+    # shape because it takes PSD-projected Newton steps while far from equilibrium (with exact-Hessian
+    # steps first it stopped in a tangled local minimum with one tet still inverted, J = -0.10)
+    assert np.abs(state.x - mesh.points).max() < 1e-3
+    assert constitutive.elastic_energy(model, state.x) < 1e-6 * constitutive.elastic_energy(model, x0)
 
 
 @pytest.mark.parametrize("integrator", ["xpbd", "reference"])
