@@ -54,31 +54,26 @@ def _table_cosines():
     return np.maximum(np.arange(TABLE_SIZE) / (TABLE_SIZE - 1.0), 1e-6)
 
 
-def _stratified_ggx_normals(alpha: float, n_samples: int):
-    """n_samples^2 microfacet normals drawn from D(m) (n.m) on a stratified grid."""
+def visible_normals(wi: np.ndarray, alpha: float, n_samples: int) -> np.ndarray:
+    """n_samples^2 GGX microfacet normals drawn from the distribution of normals visible from ``wi``,
+    D_wi(m) = G1(wi) max(0, wi.m) D(m) / cos(theta_i), on a stratified grid (Heitz 2018: stretch the
+    view direction, sample the projected hemisphere, unstretch). Estimators over these normals stay
+    bounded; drawing from D(m)(n.m) instead weighs grazing facets by (wi.m)/(n.m), a heavy tail that a
+    65k-point grid under-samples (it read the transmission 0.5-0.9 % low)."""
+    vh = np.array([alpha * wi[0], alpha * wi[1], wi[2]])
+    vh /= np.linalg.norm(vh)
+    lensq = vh[0] * vh[0] + vh[1] * vh[1]
+    t1 = np.array([-vh[1], vh[0], 0.0]) / np.sqrt(lensq) if lensq > 0.0 else np.array([1.0, 0.0, 0.0])
+    t2 = np.cross(vh, t1)
     g = (np.arange(n_samples) + 0.5) / n_samples
-    u, v = np.meshgrid(g, g, indexing="ij")
-    u, v = u.ravel(), v.ravel()
-    cos_h = np.sqrt((1.0 - u) / (1.0 + (alpha * alpha - 1.0) * u))
-    sin_h = np.sqrt(np.maximum(1.0 - cos_h * cos_h, 0.0))
-    return np.stack([sin_h * np.cos(2 * np.pi * v), sin_h * np.sin(2 * np.pi * v), cos_h], axis=1)
-
-
-@functools.lru_cache(maxsize=32)
-def _coating_albedo(alpha: float, eta: float, n_samples: int = 256):
-    """(mu grid, E_spec(mu)): the rough coating's directional albedo by stratified GGX sampling."""
-    mus = _table_cosines()
-    h = _stratified_ggx_normals(alpha, n_samples)
-    albedo = np.empty(TABLE_SIZE)
-    for k, mu in enumerate(mus):
-        wo = np.array([np.sqrt(1.0 - mu * mu), 0.0, mu])
-        v_h = h @ wo
-        wi = 2.0 * v_h[:, None] * h - wo
-        ok = (wi[:, 2] > 0.0) & (v_h > 0.0)
-        # estimator f cos / pdf with pdf(wi) = D (n.h) / (4 wo.h):  F G (wo.h) / (mu (n.h))
-        est = fresnel(v_h, eta) * smith_G1(wi[:, 2], alpha) * smith_G1(mu, alpha) * v_h / (mu * h[:, 2])
-        albedo[k] = np.sum(np.where(ok, est, 0.0)) / est.size
-    return mus, np.clip(albedo, 0.0, 1.0)
+    u1, u2 = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    r, phi = np.sqrt(u1), 2.0 * np.pi * u2
+    p1, p2 = r * np.cos(phi), r * np.sin(phi)
+    s = 0.5 * (1.0 + vh[2])
+    p2 = (1.0 - s) * np.sqrt(1.0 - p1 * p1) + s * p2
+    nh = p1[:, None] * t1 + p2[:, None] * t2 + np.sqrt(np.maximum(0.0, 1.0 - p1 * p1 - p2 * p2))[:, None] * vh
+    m = np.stack([alpha * nh[:, 0], alpha * nh[:, 1], np.maximum(nh[:, 2], 0.0)], axis=1)
+    return m / np.linalg.norm(m, axis=1, keepdims=True)
 
 
 def smith_G1_oriented(v: np.ndarray, m: np.ndarray, alpha: float) -> np.ndarray:
@@ -91,26 +86,39 @@ def smith_G1_oriented(v: np.ndarray, m: np.ndarray, alpha: float) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=32)
+def _coating_albedo(alpha: float, eta: float, n_samples: int = 256):
+    """(mu grid, E_spec(mu)): the rough coating's directional albedo, E = E_vis[F(wi.m) G1(wo)] over the
+    visible normals with wo the mirror direction (eta < 1 includes total internal reflection)."""
+    mus = _table_cosines()
+    albedo = np.empty(TABLE_SIZE)
+    for k, mu in enumerate(mus):
+        wi = np.array([np.sqrt(1.0 - mu * mu), 0.0, mu])
+        m = visible_normals(wi, alpha, n_samples)
+        c = m @ wi
+        wo = 2.0 * c[:, None] * m - wi
+        est = fresnel(c, eta) * smith_G1_oriented(wo, m, alpha)
+        albedo[k] = np.mean(np.where((wo[:, 2] > 0.0) & (c > 0.0), est, 0.0))
+    return mus, np.clip(albedo, 0.0, 1.0)
+
+
+@functools.lru_cache(maxsize=32)
 def _coating_transmittance(alpha: float, eta: float, n_samples: int = 256):
     """(mu grid, T(mu)): the light a rough dielectric interface transmits into the layer for light
-    arriving at cosine mu, T = int (1 - F(wi.m)) G1(wi) G1(wt) D(m) (wi.m) / mu dm with wt the direction
-    refracted through the facet m (as Mitsuba 3's ``eval_transmittance``). The masking of the refracted
-    direction makes it smaller than 1 - E_spec(mu): light the coating neither reflects nor transmits
-    is the energy the single-scattering microfacet model loses."""
+    arriving at cosine mu, T = int (1 - F(wi.m)) G1(wi) G1(wt) D(m) (wi.m) / mu dm = E_vis[(1 - F) G1(wt)]
+    with wt the direction refracted through the facet m (as Mitsuba 3's ``eval_transmittance``). The
+    masking of the refracted direction makes it smaller than 1 - E_spec(mu): light the coating neither
+    reflects nor transmits is the energy the single-scattering microfacet model loses."""
     mus = _table_cosines()
-    m = _stratified_ggx_normals(alpha, n_samples)
     out = np.empty(TABLE_SIZE)
     for k, mu in enumerate(mus):
         wi = np.array([np.sqrt(1.0 - mu * mu), 0.0, mu])
+        m = visible_normals(wi, alpha, n_samples)
         c = m @ wi
         sin_t2 = (1.0 - c * c) / (eta * eta)
         cos_t = np.sqrt(np.maximum(1.0 - sin_t2, 0.0))
         wt = -wi[None, :] / eta + (c / eta - cos_t)[:, None] * m
-        wis = np.broadcast_to(wi, m.shape)
-        # estimator with pdf(m) = D(m) (n.m): (1 - F) G1(wi) G1(wt) (wi.m) / (mu (n.m))
-        est = ((1.0 - fresnel(c, eta)) * smith_G1_oriented(wis, m, alpha) * smith_G1_oriented(wt, m, alpha)
-               * c / (mu * m[:, 2]))
-        out[k] = np.sum(np.where((c > 0.0) & (sin_t2 < 1.0), est, 0.0)) / est.size
+        est = (1.0 - fresnel(c, eta)) * smith_G1_oriented(wt, m, alpha)
+        out[k] = np.mean(np.where((c > 0.0) & (sin_t2 < 1.0) & (wt[:, 2] < 0.0), est, 0.0))
     return mus, np.clip(out, 0.0, 1.0)
 
 
