@@ -353,3 +353,29 @@ def test_box_downsample_averages_blocks_and_keeps_the_nearest_depth():
     out, d = box_downsample(hdr, depth, 2)
     np.testing.assert_allclose(out, hdr.reshape(4, 2, 6, 2, 3).mean(axis=(1, 3)), rtol=1e-6)
     assert np.array_equal(d, depth.reshape(4, 2, 6, 2).min(axis=(1, 3)))
+
+
+def test_jittered_supersampling_is_stratified_and_deterministic():
+    """A slanted edge: 4x4 jittered samples give pixel coverages between the regular grid's levels (the
+    samples move within their cells), the same for the same seed, and the same mean coverage."""
+    p = np.array([[-0.1, -0.1, 0.0], [0.1, -0.07, 0.0], [0.12, 0.1, 0.0], [-0.1, 0.1, 0.0]])
+    quad = RenderObject(points=p, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=np.tile([0.0, 0, 1], (4, 1)),
+                        uv=None, material="liver")
+    cam = _top_camera(32, 24)
+    light = AreaLight(samples=1)
+
+    def coverage(jitter, seed=1):
+        res = render_frame([quad], cam, light, RenderSettings(supersampling=4, jitter=jitter, seed=seed))
+        return np.isfinite(res.gbuffer["depth"]).reshape(24, 4, 32, 4).mean(axis=(1, 3))
+
+    regular, jittered = coverage(False), coverage(True)
+    assert np.array_equal(jittered, coverage(True))
+    assert not np.array_equal(jittered, regular)
+    edge = (regular > 0) & (regular < 1)
+    assert edge.sum() > 10
+    assert jittered[edge].mean() == pytest.approx(regular[edge].mean(), abs=0.05)
+    full = regular == 1
+    inner = full.copy()  # fully covered pixels whose neighbours are fully covered too
+    inner[1:-1, 1:-1] &= full[:-2, 1:-1] & full[2:, 1:-1] & full[1:-1, :-2] & full[1:-1, 2:]
+    inner[[0, -1], :] = inner[:, [0, -1]] = False
+    assert inner.sum() > 50 and np.all(jittered[inner] == 1.0)

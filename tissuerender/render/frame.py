@@ -92,6 +92,7 @@ class RenderSettings:
     environment_axis: tuple = (0.0, 0.0, 1.0)
     ao_distance: float = 0.02  # occlusion ray length [m]
     ao_samples: int = 8
+    jitter: bool = True  # supersampling: each sample at a seeded random point of its cell (False: cell centres)
     fused: bool = True  # numba direct-lighting passes (shade_kernel); False: the NumPy estimator only
     ray_backend: str = "auto"  # "auto" | "embree" | "numba" (tissuerender.render.rays)
 
@@ -472,7 +473,12 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
     gbuffer: dict = {}
     with rec.run("raster"):
         P, N, V, T, tri_mat = clip_near(P, N, V, T, tri_mat, camera)
-        depth, tri_id, bary = rasterize_objects(P, T, camera, W, H)
+        jitter = None
+        if ss > 1 and settings.jitter:
+            # each of a pixel's ss x ss samples at a seeded uniform point of its own cell (stratified)
+            rng = np.random.default_rng(np.random.SeedSequence([settings.seed, 0x5A]))
+            jitter = rng.random((H, W, 2))
+        depth, tri_id, bary = rasterize_objects(P, T, camera, W, H, jitter)
         jj, ii, pos, n, wo, tri = interpolate_gbuffer(P, N, T, tri_id, bary, camera.position)
         mat = tri_mat[tri]
         albedo = np.array([o.diffuse_albedo for o in optics], float).reshape(-1, 3)[mat]

@@ -18,23 +18,27 @@ def camera_basis(position, look_at, up):
 
 
 @njit(cache=True, parallel=True)
-def rasterize(sx, sy, zv, tris, width, height, near, depth, tri_id, bary, bands=1):
+def rasterize(sx, sy, zv, tris, width, height, near, depth, tri_id, bary, bands=1, jitter=None):
     """Z-buffer raster of triangles with screen positions ``sx, sy`` and view depths ``zv``.
 
     Writes per pixel the nearest view depth, the triangle id and perspective-correct barycentrics
     (weights ``b_i / z_i`` renormalised). Triangles with a vertex in front of ``near`` are skipped.
     The image is split into horizontal bands rasterised in parallel; each band visits the triangles in
     the same order, so every pixel gets the same result as a serial raster (ties keep the first).
+    ``jitter`` (H, W, 2) moves each pixel's sample from the centre to ``(i, j) + jitter`` (offsets in
+    [0, 1)); None samples the centres.
     """
+    jittered = jitter is not None
+    offsets = jitter if jitter is not None else np.full((1, 1, 2), 0.5)
     bands = max(1, min(height, bands))
     for band in prange(bands):
         row0 = band * height // bands
         row1 = (band + 1) * height // bands - 1
-        _raster_rows(sx, sy, zv, tris, width, row0, row1, near, depth, tri_id, bary)
+        _raster_rows(sx, sy, zv, tris, width, row0, row1, near, depth, tri_id, bary, jittered, offsets)
 
 
 @njit(cache=True)
-def _raster_rows(sx, sy, zv, tris, width, row0, row1, near, depth, tri_id, bary):
+def _raster_rows(sx, sy, zv, tris, width, row0, row1, near, depth, tri_id, bary, jittered, offsets):
     # vertices that clipping put on the near plane may land a rounding error in front of it
     limit = near * (1.0 - 1e-9)
     for t in range(tris.shape[0]):
@@ -57,6 +61,9 @@ def _raster_rows(sx, sy, zv, tris, width, row0, row1, near, depth, tri_id, bary)
             py = j + 0.5
             for i in range(i0, i1 + 1):
                 px = i + 0.5
+                if jittered:
+                    px = i + offsets[j, i, 0]
+                    py = j + offsets[j, i, 1]
                 w0 = ((x1 - px) * (y2 - py) - (x2 - px) * (y1 - py)) / area
                 w1 = ((x2 - px) * (y0 - py) - (x0 - px) * (y2 - py)) / area
                 w2 = 1.0 - w0 - w1
@@ -87,15 +94,16 @@ def project(points: np.ndarray, camera, width: int, height: int):
     return sx, sy, zv
 
 
-def rasterize_objects(points: np.ndarray, triangles: np.ndarray, camera, width: int, height: int):
-    """(depth (H, W) view depth or inf, triangle id (H, W) or -1, perspective-correct barycentrics (H, W, 3))."""
+def rasterize_objects(points: np.ndarray, triangles: np.ndarray, camera, width: int, height: int, jitter=None):
+    """(depth (H, W) view depth or inf, triangle id (H, W) or -1, perspective-correct barycentrics (H, W, 3));
+    ``jitter`` (H, W, 2): per-pixel sample offsets in [0, 1) (None: pixel centres)."""
     sx, sy, zv = project(points, camera, width, height)
     depth = np.full((height, width), np.inf)
     tri_id = np.full((height, width), -1, np.int64)
     bary = np.zeros((height, width, 3))
     if triangles.shape[0]:
         rasterize(sx, sy, zv, triangles, width, height, float(camera.near), depth, tri_id, bary,
-                  4 * numba.get_num_threads())
+                  4 * numba.get_num_threads(), None if jitter is None else np.ascontiguousarray(jitter, np.float64))
     far = depth > camera.far
     depth[far], tri_id[far] = np.inf, -1
     return depth, tri_id, bary

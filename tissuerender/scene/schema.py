@@ -267,6 +267,7 @@ class Output(Strict):
     fps: Annotated[float, Field(gt=0.0, le=10000.0)] = 24.0
     formats: Annotated[list[Literal[FORMATS]], Field(min_length=1)] = ["png"]  # type: ignore[valid-type]
     supersampling: Annotated[int, Field(ge=1, le=8)] = 1
+    jitter: bool = True
 
 
 RENDER_FLAGS = ("shadows", "sss", "ao", "mucus_reflection", "motion")
