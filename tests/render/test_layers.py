@@ -153,3 +153,29 @@ def test_mucosa_roughness_map_modulates_the_tissue_and_granular_roughness():
     layers = get_preset("colon_mucosa").optics.layers
     tex = layers.baked_roughness_factor()
     assert tex.shape == (layers.texture_size, layers.texture_size) and 0.7 <= tex.min() and tex.max() <= 1.3
+
+
+def test_layer_channels_exist_only_with_a_layered_material_and_hold_its_values():
+    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+
+    pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
+    cam = Camera(position=(0.0, 0.0, 0.08), look_at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg=60.0,
+                 near=0.01, far=1.0, width=32, height=32)
+
+    def render(material):
+        slab = RenderObject(points=pts, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=pts[:, :2],
+                            material=material)
+        return render_frame([slab], cam, AreaLight(samples=1), RenderSettings(light_samples=1)).gbuffer
+
+    liver = render("liver")
+    assert "layer_albedo" not in liver and "mucus_weight" not in liver
+    assert liver["specular"] == pytest.approx(get_preset("liver").optics.f0)
+    colon = render("colon_mucosa")
+    layers = get_preset("colon_mucosa").optics.layers
+    assert np.allclose(colon["layer_albedo"][:, 0], layers.connective_colour)
+    assert np.allclose(colon["layer_albedo"][:, 1], layers.submucosa_colour)
+    # water-like coat seen nearly head-on: Fresnel ((n - 1) / (n + 1))^2 = 0.021 for n = 1.34, a little
+    # more towards the image corners
+    f_normal = ((layers.coat_ior - 1) / (layers.coat_ior + 1)) ** 2
+    assert colon["mucus_weight"].min() == pytest.approx(f_normal, rel=0.02)
+    assert colon["mucus_weight"].max() < 2 * f_normal

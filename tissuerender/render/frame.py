@@ -527,6 +527,19 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
     layered = _layer_arrays(optics, mat)
     if layered is not None and rough_factor is not None:
         layered["granular_alpha"] = layered["granular_alpha"] * rough_factor
+    gbuffer["specular"] = np.array([o.f0 for o in optics], float)[mat] if optics else np.zeros(0)
+    if layered is not None:
+        # the layer channels exist only when a layered material is in view: each point's connective and
+        # submucosa colours (k, 2, 3), and the weight of the wet (mucus) reflection, the coat's Fresnel
+        # reflectance at the viewing angle (0 off the mucosa)
+        from tissuerender.render.brdf import dielectric_F
+
+        stacks = [o.layers for o in optics]
+        colours = np.array([[st.connective_colour, st.submucosa_colour] if st is not None else [[0.0] * 3] * 2
+                            for st in stacks], float)
+        gbuffer["layer_albedo"] = colours[mat]
+        nv = np.clip(np.einsum("ij,ij->i", n, wo), 0.0, 1.0)
+        gbuffer["mucus_weight"] = np.where(layered["mask"], dielectric_F(nv, layered["coat_ior"]), 0.0)
     hdr = np.zeros((H, W, 3), np.float32)
     with rec.run("shade"):
         centre, ln, eu, ev = light_frame(light, camera)
