@@ -8,7 +8,9 @@ Per tet, with ``F = Ds Dm^-1``, two constraints with compliances from the Lamé 
   ``dC/dF = cof F``, compliance ``1 / (lam V)``.
 
 Each substep: predict ``x* = x + dt v + dt^2 M^-1 f_ext``; reset the multipliers; for every
-iteration, for every colour (tets sharing no node, projected in parallel), project
+iteration, for every colour (tets sharing no node; the colours of separate domains' interiors are
+swept concurrently, ``sim.coloring.split_into_domains``, and a colour's tets are projected in
+vectorised blocks, ``sim.xpbd_blocked``), project
 ``dlambda = (-C - alpha~ lambda) / (sum_i w_i |grad_i C|^2 + alpha~)``, ``alpha~ = alpha / dt^2``,
 ``x_i += w_i grad_i C dlambda`` (Qian 4.42–4.44; its eq. 4.22 gradient typo is noted in DESIGN.md);
 then tool contact, then ``v = (x - x_prev) / dt``. The ``jacobi`` solver averages the corrections of all
@@ -83,13 +85,6 @@ class XPBD:
         self.alpha_hyd = np.where(has_lam, 1.0 / np.where(has_lam, lam, 1.0) / volume, 1e30)
         self.gamma = np.where(has_lam, 1.0 + mu / np.where(has_lam, lam, 1.0), 1.0)
         self.w = m.inverse_mass()
-        self.kernel = settings.get("kernel", "blocked")
-        if self.kernel not in ("blocked", "scalar"):
-            raise ValueError(f"xpbd kernel must be 'blocked' or 'scalar', found {self.kernel!r}")
-        self.blocks = None
-        if self.solver == "gauss_seidel" and self.kernel == "blocked":
-            self.blocks = blocked.pack_blocks(self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd,
-                                              self.gamma, self.colour_start)
         self.energy = None
         material = settings.get("material", "stable_neo_hookean")
         if material not in ("stable_neo_hookean", "model"):
@@ -98,6 +93,13 @@ class XPBD:
             from sim.xpbd_energy import EnergyConstraints
 
             self.energy = EnergyConstraints(m, order, self.colour_start)
+        self.kernel = settings.get("kernel", "blocked")
+        if self.kernel not in ("blocked", "scalar"):
+            raise ValueError(f"xpbd kernel must be 'blocked' or 'scalar', found {self.kernel!r}")
+        self.blocks = None
+        if self.solver == "gauss_seidel" and self.kernel == "blocked" and self.energy is None:
+            self.blocks = blocked.pack_blocks(self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd,
+                                              self.gamma, self.colour_start)
         if self.strain_limits is not None:
             # limited axes: the rest frame's x, y, z and, for fibred materials, the fibre (Qian 4.3.4)
             axes = [np.broadcast_to(np.eye(3)[k], (m.n_tets, 3)) for k in range(3)]
