@@ -164,13 +164,19 @@ def light_sample(s: int, m: np.ndarray, rotation: np.ndarray, pos: np.ndarray, c
     """Sample ``s`` of ``m`` on the light for each shading point: the point q, the unit direction wi
     towards it and the weight ``cos(theta_l) / r^2 * A / m`` (Qian eq. 6.14 with the A/m correction).
 
-    The point is number ``s * stride + phase`` of a Hammersley set of ``m * stride`` points, rotated by
-    ``rotation``: the ``stride`` supersamples of one pixel (``phase`` 0 ... stride - 1, sharing the pixel's
-    rotation) together draw one stratified set, interleaved."""
+    Each of the ``stride`` supersamples of a pixel (``phase`` k = 0 ... stride - 1, sharing the pixel's
+    rotation) draws a whole m-point Hammersley set (u = s/m, v = radical inverse of s), shifted by
+    k / (m stride) in u and by radinv(k) / P in v (P the power of two >= m): each supersample's set is
+    complete on its own (its estimate converges to the full integral, so per-subsample estimators such
+    as the reflection-cone split stay consistent) and together they fill the strata between each other's
+    points. (Interleaving one m-stride-point Hammersley set instead confines each supersample to a
+    1/stride strip of the light in v, which the cone split turned into a per-pixel error that did not
+    fall with m.)"""
     area = 4.0 * np.linalg.norm(eu) * np.linalg.norm(ev)
-    index = s * stride + np.asarray(phase, np.int64) + np.zeros(m.shape, np.int64)
-    u = np.mod(index / (m * stride) + rotation[:, 0], 1.0)
-    v = np.mod(radical_inverse(index) + rotation[:, 1], 1.0)
+    k = np.asarray(phase, np.int64) + np.zeros(m.shape, np.int64)
+    p2 = 2 ** np.ceil(np.log2(np.maximum(m, 1))).astype(np.int64)
+    u = np.mod((s * stride + k) / (m * stride) + rotation[:, 0], 1.0)
+    v = np.mod(radical_inverse(np.full(m.shape, s)) + radical_inverse(k) / p2 + rotation[:, 1], 1.0)
     q = centre + (2.0 * u - 1.0)[:, None] * eu + (2.0 * v - 1.0)[:, None] * ev
     wi = q - pos
     d2 = np.maximum(np.einsum("ij,ij->i", wi, wi), 1e-12)

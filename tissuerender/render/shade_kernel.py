@@ -67,9 +67,13 @@ def _refracted_cos(mu, ior):
 
 @njit(cache=True, inline="always")
 def _sample_point(i, s, mi, rotation, stride, phase, centre, eu, ev):
-    index = s * stride + phase[i]
-    u = (index / (mi * stride) + rotation[i, 0]) % 1.0
-    v = (_radical_inverse(index) + rotation[i, 1]) % 1.0
+    """Point s of the m-point Hammersley set of supersample ``phase[i]`` (frame.light_sample)."""
+    k = phase[i]
+    p2 = 1
+    while p2 < mi:
+        p2 *= 2
+    u = ((s * stride + k) / (mi * stride) + rotation[i, 0]) % 1.0
+    v = (_radical_inverse(s) + _radical_inverse(k) / p2 + rotation[i, 1]) % 1.0
     return (centre[0] + (2.0 * u - 1.0) * eu[0] + (2.0 * v - 1.0) * ev[0],
             centre[1] + (2.0 * u - 1.0) * eu[1] + (2.0 * v - 1.0) * ev[1],
             centre[2] + (2.0 * u - 1.0) * eu[2] + (2.0 * v - 1.0) * ev[2])
