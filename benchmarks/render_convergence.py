@@ -1,7 +1,8 @@
 """What rendering accuracy costs in time: error against a converged reference versus seconds per frame,
-for light samples (uniform and adaptive m(d)), supersampling and the sample pattern (blue-noise offsets,
-the default, against white noise: keys ending in ``_white``), on scenes/liver_probe.toml with shadows
-and SSS.
+for light samples (uniform and adaptive m(d)), supersampling, the sample pattern (blue-noise offsets,
+the default, against white noise: keys ending in ``_white``) and the reflection cone (as many extra
+samples inside the specular cone's footprint, NumPy estimator: keys ending in ``_cone``), on
+scenes/liver_probe.toml with shadows and SSS.
 
 Error: mean FLIP (NVIDIA FLIP via flip-evaluator, LDR) and relative RMSE of the linear HDR, against
 the same frame rendered by the project with many samples and 2x2 (jittered) supersampling. The
@@ -40,10 +41,13 @@ from tissuerender.stages import StageRecorder  # noqa: E402
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "liver_probe.toml"
 
 
-def variant(scene, width, height, sampling, samples, ss, pattern="blue_noise"):
+def variant(scene, width, height, sampling, samples, ss, pattern="blue_noise", cone=False):
+    light = {"samples": samples, "sampling": sampling, "pattern": pattern}
+    if cone:  # as many samples again inside the reflection cone's footprint
+        light.update(reflection_cone=True, cone_samples=samples)
     return dataclasses.replace(
         scene,
-        light=scene.light.model_copy(update={"samples": samples, "sampling": sampling, "pattern": pattern}),
+        light=scene.light.model_copy(update=light),
         effects=scene.effects.model_copy(update={"shadows": True, "sss": True}),
         output=scene.output.model_copy(update={"resolution": [width, height], "supersampling": ss}),
     )
@@ -80,14 +84,15 @@ def main() -> None:
     samples_list = (1, 4, 16) if args.quick else (1, 2, 4, 8, 16, 32, 64)
     best = None
     print(f"{'setting':24s} {'seconds':>8s} {'FLIP':>8s} {'rel RMSE':>9s}")
-    settings = [(ss, sampling, m, "blue_noise") for ss in (1, 2) for sampling in ("uniform", "adaptive")
+    settings = [(ss, sampling, m, "blue_noise", False) for ss in (1, 2) for sampling in ("uniform", "adaptive")
                 for m in samples_list]
-    settings += [(ss, "uniform", m, "white_noise") for ss in (1, 2) for m in samples_list[:3]]
-    for ss, sampling, m, pattern in settings:
-        hdr, ldr, seconds = render(variant(base, width, height, sampling, m, ss, pattern))
+    settings += [(ss, "uniform", m, "white_noise", False) for ss in (1, 2) for m in samples_list[:3]]
+    settings += [(ss, "uniform", m, "blue_noise", True) for ss in (1, 2) for m in samples_list[:3]]
+    for ss, sampling, m, pattern, cone in settings:
+        hdr, ldr, seconds = render(variant(base, width, height, sampling, m, ss, pattern, cone))
         mean_flip, _ = flip(ref_ldr, ldr)
         rel = float(np.sqrt(np.mean((hdr - ref_hdr) ** 2)) / max(np.sqrt(np.mean(ref_hdr ** 2)), 1e-30))
-        key = f"{sampling}_m{m}_ss{ss}" + ("_white" if pattern == "white_noise" else "")
+        key = f"{sampling}_m{m}_ss{ss}" + ("_white" if pattern == "white_noise" else "") + ("_cone" if cone else "")
         result[key] = {"seconds": round(seconds, 3), "flip": round(mean_flip, 5), "rel_rmse": round(rel, 5)}
         print(f"{key:24s} {seconds:8.3f} {mean_flip:8.4f} {rel:9.4f}")
         if seconds <= 0.5 and (best is None or mean_flip < best):
