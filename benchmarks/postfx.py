@@ -1,22 +1,34 @@
 """Post-effects cost: milliseconds per effect on a 640x480 frame, NumPy reference vs OSMesa GLSL.
 
-Usage: .venv/bin/python benchmarks/postfx.py [--quick]
-Last line: one JSON object with numpy_ms_total, osmesa_ms_total (the whole chain of all ten effects,
-end to end: for osmesa with its one upload and one read-back), numpy_ms_core and osmesa_ms_core (the
-required effects only, without the optional bloom, blur, sharpen, sensor noise, lens flare),
-"<effect>_<backend>_ms" keys (each effect timed inside the chain; the osmesa backend waits for the GL
-side to finish after each effect) and osmesa_over_numpy, the median over runs of the ratio of the two
-totals measured back to back (the machine is shared: compare within one run).
+Usage: .venv/bin/python benchmarks/postfx.py [--quick] [--refresh-frame]
+Two frames, each through the whole chain of all ten effects:
+- synthetic (the keys without suffix): uniform random HDR in [0, 3] with a 60x highlight, depth
+  uniform random per pixel in [0.05, 0.25] m (focus 0.1 m, aperture 2 mm, max CoC 8 px): every pixel
+  has its own random CoC, the worst case for a DoF gather;
+- rendered (suffix ``_rendered``): the HDR and depth of scenes/liver_probe.toml at 640x480 from the
+  renderer (cached in the temporary directory; ``--refresh-frame`` renders it again), with the
+  scene's hd_scope preset (chromatic aberration, tone map, mask parameters), the default
+  depth of field (the preset has no DoF table: focus 0.1 m, aperture 1 mm, max radius 12 px, the
+  scene's 75 degree field of view) and the synthetic chain's other effects.
+Last line: one JSON object with numpy_ms_total, osmesa_ms_total (the whole chain end to end: for
+osmesa with its one upload and one read-back), osmesa_over_numpy (the median over runs of the ratio
+of the two totals measured back to back: the machine is shared, compare within one run), the same
+three with ``_rendered``, "<effect>_<backend>_ms" (each effect alone, on the image it receives in
+the synthetic chain, medians; in the chain the osmesa backend draws a run of pointwise effects in
+the last pass of the effect before it, so the chain total is less than their sum), numpy_ms_core
+and osmesa_ms_core (the sum of the required effects alone: DoF, CA, tone map, grade, mask).
 Each figure is the median of several runs after one warm-up (compilation, context creation).
 """
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import platform
 import sys
-import time
+import tempfile
+from pathlib import Path
 
 # This script is called postfx.py: keep its own folder off the import path so that
 # "import postfx" finds the package, not this file.
@@ -44,41 +56,104 @@ CHAIN = [("depth_of_field", DepthOfField(focus_distance=0.1, aperture=0.002, max
 
 # the issue's required effects (bloom, blur, sharpen, sensor noise and lens flare are its optional ones)
 CORE = ("depth_of_field", "chromatic_aberration", "tonemap", "color_grade", "laparoscope_mask")
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "liver_probe.toml"
+
+
+def synthetic_frame():
+    rng = np.random.default_rng(0)
+    hdr = (rng.random((H, W, 3)) * 3.0).astype(np.float32)
+    hdr[200:204, 420:424] = 60.0  # a specular highlight for the bloom and the lens flare
+    depth = (0.05 + rng.random((H, W)) * 0.2).astype(np.float32)
+    return hdr, depth, postfx.Lens(70.0, W, H), CHAIN
+
+
+def rendered_frame(refresh: bool):
+    """liver_probe's HDR and depth at 640x480 (cached by the scene file's hash), its lens and chain."""
+    from tissuerender import load_scene
+
+    scene = load_scene(SCENE)
+    digest = hashlib.sha256(SCENE.read_bytes()).hexdigest()[:12]
+    cache = Path(tempfile.gettempdir()) / f"tissuerender_postfx_liver_probe_{W}x{H}_{digest}.npz"
+    if refresh or not cache.exists():
+        from tissuerender import make_plan
+        from tissuerender.pipeline import build_world, render_hdr
+        from tissuerender.stages import StageRecorder
+
+        plan = make_plan(scene)
+        world = build_world(scene, plan, StageRecorder())
+        result, _ = render_hdr(world, scene, plan, StageRecorder(), 0.0, scene.seed, W, H)
+        np.savez(cache, hdr=result.hdr.astype(np.float32), depth=result.depth.astype(np.float32))
+    data = np.load(cache)
+    preset = dict(scene.effect_chain())  # hd_scope: chromatic aberration, tone map, mask
+    chain = [(name, preset.get(name, params)) for name, params in CHAIN]
+    chain[0] = ("depth_of_field", DepthOfField())  # the preset has no DoF table: the defaults
+    return data["hdr"], data["depth"], postfx.Lens(scene.camera.fov_deg, W, H), chain
+
+
+def time_chains(hdr, depth, lens, chain, backends, repeats):
+    """Whole-chain runs, the backends alternating so that both see the same machine load."""
+    for backend in backends:  # warm-up: compilation, context creation, shader compilation
+        postfx.apply_chain(hdr, depth, chain, lens, backend=backend, seed=1)
+    runs: dict = {b: [] for b in backends}
+    for r in range(repeats):
+        for backend in backends:
+            runs[backend].append(postfx.apply_chain(hdr, depth, chain, lens, backend=backend, seed=r))
+    return runs
+
+
+def time_effects(hdr, depth, lens, chain, backends, repeats):
+    """Each effect alone on the image it receives in the chain (the NumPy chain's intermediates)."""
+    inputs, img = [], hdr
+    for name, params in chain:
+        inputs.append(img)
+        img = postfx.apply_effect(name, img, depth, params, lens, seed=0).astype(np.float32, copy=False)
+    ms: dict = {}
+    for (name, params), img in zip(chain, inputs):
+        for backend in backends:
+            postfx.apply_chain(img, depth, [(name, params)], lens, backend=backend)  # warm-up
+        samples: dict = {b: [] for b in backends}
+        for r in range(repeats):
+            for backend in backends:
+                run = postfx.apply_chain(img, depth, [(name, params)], lens, backend=backend, seed=r)
+                samples[backend].append(run.seconds[name])
+        for backend in backends:
+            ms[(name, backend)] = float(np.median(samples[backend])) * 1e3
+    return ms
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--refresh-frame", action="store_true", help="render the liver_probe frame again")
     args = parser.parse_args()
     repeats = 5 if args.quick else 15
-    rng = np.random.default_rng(0)
-    hdr = (rng.random((H, W, 3)) * 3.0).astype(np.float32)
-    hdr[200:204, 420:424] = 60.0  # a specular highlight for the bloom and the lens flare
-    depth = (0.05 + rng.random((H, W)) * 0.2).astype(np.float32)
-    lens = postfx.Lens(70.0, W, H)
     backends = ["numpy"] + (["osmesa"] if osmesa.library_available() else [])
-    runs: dict = {b: [] for b in backends}
-    for backend in backends:  # warm-up: compilation, context creation, shader compilation
-        postfx.apply_chain(hdr, depth, CHAIN, lens, backend=backend, seed=1)
-    for r in range(repeats):  # the backends alternate, so both see the same machine load
-        for backend in backends:
-            runs[backend].append(postfx.apply_chain(hdr, depth, CHAIN, lens, backend=backend, seed=r))
     result: dict = {}
+    frames = {"": synthetic_frame(), "_rendered": rendered_frame(args.refresh_frame)}
+    for suffix, (hdr, depth, lens, chain) in frames.items():
+        label = "rendered" if suffix else "synthetic"
+        runs = time_chains(hdr, depth, lens, chain, backends, repeats)
+        for backend in backends:
+            total = float(np.median([run.total_seconds for run in runs[backend]])) * 1e3
+            result[f"{backend}_ms_total{suffix}"] = round(total, 2)
+            print(f"{label:9s} {backend:7s} chain total {total:8.2f} ms")
+        if "osmesa" in backends:
+            ratio = float(np.median([o.total_seconds / n.total_seconds for n, o in zip(runs["numpy"], runs["osmesa"])]))
+            result[f"osmesa_over_numpy{suffix}"] = round(ratio, 3)
+            print(f"{label:9s} osmesa / numpy (median of {repeats} back-to-back runs): {ratio:.3f}")
+            last = runs["osmesa"][-1]
+            groups = {"+".join([k, *last.fused.get(k, [])]): float(np.median([run.seconds[k] for run in runs["osmesa"]])) * 1e3
+                      for k in last.seconds}
+            print(f"{label:9s} osmesa passes in the chain [ms]: " + ", ".join(f"{k} {v:.1f}" for k, v in groups.items()))
+    hdr, depth, lens, chain = frames[""]
+    ms = time_effects(hdr, depth, lens, chain, backends, repeats)
     for backend in backends:
-        for name, _ in CHAIN:
-            ms = float(np.median([run.seconds[name] for run in runs[backend]])) * 1e3
-            result[f"{name}_{backend}_ms"] = round(ms, 2)
-            print(f"{backend:7s} {name:22s} {ms:8.2f} ms")
-        total = float(np.median([run.total_seconds for run in runs[backend]])) * 1e3
-        result[f"{backend}_ms_total"] = round(total, 2)
-        result[f"{backend}_ms_core"] = round(sum(result[f"{n}_{backend}_ms"] for n in CORE), 2)
-        print(f"{backend:7s} {'total':22s} {total:8.2f} ms")
-    if "osmesa" in backends:
-        ratios = [o.total_seconds / n.total_seconds for n, o in zip(runs["numpy"], runs["osmesa"])]
-        result["osmesa_over_numpy"] = round(float(np.median(ratios)), 3)
-        print(f"osmesa / numpy (median of {repeats} back-to-back runs): {result['osmesa_over_numpy']:.3f}")
+        for name, _ in chain:
+            result[f"{name}_{backend}_ms"] = round(ms[(name, backend)], 2)
+            print(f"{backend:7s} {name:22s} {ms[(name, backend)]:8.2f} ms (alone)")
+        result[f"{backend}_ms_core"] = round(sum(ms[(n, backend)] for n in CORE), 2)
     if "osmesa" not in backends:
-        result["osmesa_ms_total"] = None
+        result["osmesa_ms_total"] = result["osmesa_ms_total_rendered"] = None
         result["osmesa_skipped"] = "libOSMesa missing (Debian package libosmesa6)"
     result["machine"] = (f"{platform.machine()} {os.cpu_count()} cpus, numba threads {numba.get_num_threads()}, "
                          f"LP_NUM_THREADS {os.environ.get('LP_NUM_THREADS', 'default')}, "

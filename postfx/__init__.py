@@ -60,9 +60,13 @@ class Lens:
 @dataclass
 class ChainResult:
     image: np.ndarray
-    seconds: dict = field(default_factory=dict)  # per effect
+    seconds: dict = field(default_factory=dict)  # per effect (see fused)
     backend_used: str = "numpy"
     total_seconds: float = 0.0  # the whole chain, with the osmesa upload and read-back
+    # osmesa draws a run of pointwise effects (noise, tone map, grade, mask) in the last pass of the
+    # effect before them: fused[name] lists them, seconds[name] includes their time and they have no
+    # entry of their own in seconds
+    fused: dict = field(default_factory=dict)
 
 
 # effects that need only the image and their parameters
@@ -99,8 +103,14 @@ def apply_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens: Lens, backend: 
         from postfx import osmesa
 
         osmesa.Context.get()  # raises OSMesaUnavailable naming libosmesa6 when it cannot run
-        img, seconds, total = osmesa.run_chain(img, depth, chain, lens, seed)  # one upload, one read-back
-        return ChainResult(np.clip(img, 0.0, 1.0), seconds, used, total)
+        img, groups, total = osmesa.run_chain(img, depth, chain, lens, seed)  # one upload, one read-back
+        seconds, fused = {}, {}
+        for key, value in groups.items():
+            first, *rest = key.split("+")
+            seconds[first] = value
+            if rest:
+                fused[first] = rest
+        return ChainResult(np.clip(img, 0.0, 1.0), seconds, used, total, fused)
     seconds = {}
     begin = time.perf_counter()
     for name, params in chain:

@@ -5,8 +5,15 @@
 Conventions: texel (i, j) is image pixel (column i, row j) (row 0 uploaded is row 0 read back);
 ``texture()`` is used only with nearest filtering at texel centres, where it is ``texelFetch`` with the
 texture's wrap mode (clamp to edge = clamped indices, clamp to border = a constant outside).
+
+Pointwise effects (sensor noise, tone map, colour grade, mask: each output pixel depends only on the
+same input pixel) are GLSL functions ``fx_<effect>`` with their own uniform names. ``source(name,
+epilogue)`` appends a run of them to the last pass of another effect (``post()`` in that pass), so
+a chain such as blur -> noise -> tone map -> grade draws one full-resolution pass where it drew four.
 """
 from __future__ import annotations
+
+import functools
 
 _HEADER = """//VTK::System::Dec
 in vec2 texCoord;
@@ -53,74 +60,157 @@ _OUT_PIXEL = "  ivec2 p = ivec2(texCoord * vec2(out_size));\n"
 
 MAX_TAPS = 129  # Gaussian taps per pass: 2 ceil(3 sigma) + 1 for sigma up to 16 px (params allow 16)
 
+
+# -- pointwise effects: one function each, uniforms prefixed by the effect -----------------------------
+POINTWISE = ("sensor_noise", "tonemap", "color_grade", "laparoscope_mask")
+
+_POINTWISE = {
+    # counter-based Gaussian noise, the same field as effects.noise_field (hash32 = lowbias32)
+    "sensor_noise": """uniform float noise_shot;
+uniform float noise_rd;
+uniform int noise_key;
+uint hash32(uint x) {
+  x ^= x >> 16; x *= 0x7feb352du; x ^= x >> 15; x *= 0x846ca68bu; x ^= x >> 16;
+  return x;
+}
+float unit24(uint x) { return (float(x >> 8) + 0.5) * (1.0 / 16777216.0); }
+float normal(uint n, uint key) {
+  uint m2 = n & ~1u;
+  float r = sqrt(-2.0 * log(unit24(hash32(hash32(m2) ^ key))));
+  float angle = 6.2831853071795865 * unit24(hash32(hash32(m2 + 1u) ^ key));
+  return (n & 1u) == 0u ? r * cos(angle) : r * sin(angle);
+}
+vec3 fx_sensor_noise(vec3 x, ivec2 p, ivec2 size) {
+  uint key = uint(noise_key);  // the uint32 key passed through a signed uniform, same bits
+  uint n = uint(p.y * size.x + p.x) * 3u;
+  vec3 z = vec3(normal(n, key), normal(n + 1u, key), normal(n + 2u, key));
+  vec3 sd = sqrt(max(x, 0.0) * noise_shot + noise_rd * noise_rd);
+  return max(x + sd * z, 0.0);
+}
+""",
+    "tonemap": """uniform float tm_gain;
+uniform int tm_curve;
+uniform int tm_srgb;
+float encode(float x) {
+  x = clamp(x, 0.0, 1.0);
+  return x <= 0.0031308 ? 12.92 * x : 1.055 * pow(x, 1.0 / 2.4) - 0.055;
+}
+vec3 fx_tonemap(vec3 x, ivec2 p, ivec2 size) {
+  x = max(x, vec3(0.0)) * tm_gain;
+  vec3 y;
+  if (tm_curve == 0) y = clamp((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0);
+  else if (tm_curve == 1) y = x / (1.0 + x);
+  else y = clamp(x, 0.0, 1.0);
+  if (tm_srgb == 1) y = vec3(encode(y.r), encode(y.g), encode(y.b));
+  return y;
+}
+""",
+    "color_grade": """uniform sampler2D cg_lut;
+uniform float cg_saturation;
+uniform vec3 cg_luma;
+float lookup(float x, int c) {
+  int n = textureSize(cg_lut, 0).x;
+  float f = clamp(x, 0.0, 1.0) * float(n - 1);
+  int k = min(int(f), n - 2);
+  float a = texelFetch(cg_lut, ivec2(k, 0), 0)[c];
+  return a + (f - float(k)) * (texelFetch(cg_lut, ivec2(k + 1, 0), 0)[c] - a);
+}
+vec3 fx_color_grade(vec3 x, ivec2 p, ivec2 size) {
+  vec3 y = vec3(lookup(x.r, 0), lookup(x.g, 1), lookup(x.b, 2));
+  float l = dot(cg_luma, y);
+  return clamp(vec3(l) + cg_saturation * (y - vec3(l)), 0.0, 1.0);
+}
+""",
+    "laparoscope_mask": """uniform vec2 mask_centre;
+uniform float mask_radius;
+uniform float mask_softness;
+uniform float mask_vignette;
+vec3 fx_laparoscope_mask(vec3 x, ivec2 p, ivec2 size) {
+  float rho = length(vec2(float(p.x) + 0.5 - mask_centre.x, float(p.y) + 0.5 - mask_centre.y)) / (0.5 * float(size.y));
+  float edge;
+  if (mask_softness == 0.0) edge = rho <= mask_radius ? 1.0 : 0.0;
+  else {
+    float t = clamp((rho - (mask_radius - 0.5 * mask_softness)) / mask_softness, 0.0, 1.0);
+    edge = 1.0 - t * t * (3.0 - 2.0 * t);
+  }
+  float r = clamp(rho / mask_radius, 0.0, 1.0);
+  return x * (edge * (1.0 - mask_vignette * r * r));
+}
+""",
+}
+
+# -- depth of field ------------------------------------------------------------------------------------
+DOF_BLOCK = (4, 2)  # output pixels per gather fragment (columns, rows): 8 = the draw buffers every GL 3+ has
+DOF_TILE = 16  # side of the square tiles whose reach bounds the gather loops (a multiple of both block sides)
+
+
+def _dof_gather(kx: int, ky: int) -> str:
+    """Scatter-as-gather over a block of kx x ky outputs: each source texel fetched once is tested against
+    the block's outputs (the fetch, not the test, is what llvmpipe pays most for). Output (x, y) of the
+    block goes to draw buffer y kx + x, a layer of a 3D target that ``dof_unpack`` reads back."""
+    acc = "\n".join(f"  vec4 a{x}_{y} = vec4(0.0);" for y in range(ky) for x in range(kx))
+    rows = "\n".join(f"      float t{y} = s.a - float((dj - {y}) * (dj - {y}));" for y in range(ky))
+    tests = "\n".join(f"      a{x}_{y} += float((di - {x}) * (di - {x})) <= t{y} ? v : vec4(0.0);"
+                      for y in range(ky) for x in range(kx))
+    writes = "\n".join(f"  gl_FragData[{y * kx + x}] = vec4(a{x}_{y}.rgb / a{x}_{y}.a, 1.0);"
+                       for y in range(ky) for x in range(kx))
+    return _HEADER + f"""uniform sampler2D src;
+uniform sampler2D tiles;
+uniform ivec2 blocks;
+uniform int pad;
+void main() {{
+  ivec2 b = ivec2(texCoord * vec2(blocks));
+  ivec2 o = b * ivec2({kx}, {ky});
+  ivec2 q = o + ivec2(pad);
+  float m = texelFetch(tiles, o / {DOF_TILE}, 0).r;
+  // floor(sqrt()) may only overshoot (+1e-3): taps beyond a source's reach fail its own test anyway
+  int rr = int(floor(sqrt(max(m, 0.0)) + 1e-3));
+{acc}
+  for (int dj = -rr; dj <= rr + {ky - 1}; ++dj) {{
+    int dm = dj < 0 ? dj : (dj > {ky - 1} ? dj - {ky - 1} : 0);
+    int span = int(floor(sqrt(max(m - float(dm * dm), 0.0)) + 1e-3));
+    for (int di = -span; di < span + {kx}; ++di) {{
+      vec4 s = texelFetch(src, q + ivec2(di, dj), 0);
+      // reach2 - dj^2 is exact in float32 (dj^2 is an integer, a multiple of the ulp of reach2), so
+      // di^2 <= t is exactly the integer disc test di^2 + dj^2 <= reach2 of effects._scatter_disc
+{rows}
+      vec4 v = vec4(s.rgb, 1.0 / (3.14159265358979 * max(s.a - 0.25, 0.25)));
+{tests}
+    }}
+  }}
+{writes}
+}}
+"""
+
+
 SHADERS = {
-    "copy": _HEADER + "uniform sampler2D img;\nvoid main() {\n" + _PIXEL + "  gl_FragData[0] = vec4(texelFetch(img, p, 0).rgb, 1.0);\n}\n",
-    "chromatic_aberration": _HEADER + "uniform sampler2D img;\nuniform vec3 scale;\nuniform vec2 centre;\n" + _BILINEAR + """
+    "copy": _HEADER + "uniform sampler2D img;\n//EPILOGUE::Dec\nvoid main() {\n" + _PIXEL
+    + "  gl_FragData[0] = vec4(post(texelFetch(img, p, 0).rgb, p, size), 1.0);\n}\n",
+    # a run of pointwise effects on their own (the first effect of a chain, or fusion switched off)
+    "pointwise": _HEADER + "uniform sampler2D img;\n//EPILOGUE::Dec\nvoid main() {\n" + _PIXEL
+    + "  gl_FragData[0] = vec4(post(texelFetch(img, p, 0).rgb, p, size), 1.0);\n}\n",
+    "chromatic_aberration": _HEADER + "uniform sampler2D img;\nuniform vec3 scale;\nuniform vec2 centre;\n"
+    "//EPILOGUE::Dec\n" + _BILINEAR + """
 void main() {
 """ + _PIXEL + """  float x = float(p.x) + 0.5, y = float(p.y) + 0.5;
   vec3 rgb;
   for (int c = 0; c < 3; ++c) {
     rgb[c] = bilinear(img, c, centre.x + (x - centre.x) * scale[c], centre.y + (y - centre.y) * scale[c]);
   }
-  gl_FragData[0] = vec4(rgb, 1.0);
-}
-""",
-    "tonemap": _HEADER + "uniform sampler2D img;\nuniform float gain;\nuniform int curve;\nuniform int srgb;\n" + """
-float encode(float x) {
-  x = clamp(x, 0.0, 1.0);
-  return x <= 0.0031308 ? 12.92 * x : 1.055 * pow(x, 1.0 / 2.4) - 0.055;
-}
-void main() {
-""" + _PIXEL + """  vec3 x = max(texelFetch(img, p, 0).rgb, vec3(0.0)) * gain;
-  vec3 y;
-  if (curve == 0) y = clamp((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0);
-  else if (curve == 1) y = x / (1.0 + x);
-  else y = clamp(x, 0.0, 1.0);
-  if (srgb == 1) y = vec3(encode(y.r), encode(y.g), encode(y.b));
-  gl_FragData[0] = vec4(y, 1.0);
-}
-""",
-    "laparoscope_mask": _HEADER + "uniform sampler2D img;\nuniform vec2 centre;\nuniform float radius;\n"
-    "uniform float softness;\nuniform float vignette;\n" + """
-void main() {
-""" + _PIXEL + """  float x = float(p.x) + 0.5, y = float(p.y) + 0.5;
-  float rho = length(vec2(x - centre.x, y - centre.y)) / (0.5 * float(size.y));
-  float edge;
-  if (softness == 0.0) edge = rho <= radius ? 1.0 : 0.0;
-  else {
-    float t = clamp((rho - (radius - 0.5 * softness)) / softness, 0.0, 1.0);
-    edge = 1.0 - t * t * (3.0 - 2.0 * t);
-  }
-  float r = clamp(rho / radius, 0.0, 1.0);
-  float weight = edge * (1.0 - vignette * r * r);
-  gl_FragData[0] = vec4(texelFetch(img, p, 0).rgb * weight, 1.0);
-}
-""",
-    "color_grade": _HEADER + "uniform sampler2D img;\nuniform sampler2D lut;\nuniform float saturation;\n"
-    "uniform vec3 luma;\n" + """
-float lookup(float x, int c) {
-  int n = textureSize(lut, 0).x;
-  float f = clamp(x, 0.0, 1.0) * float(n - 1);
-  int k = min(int(f), n - 2);
-  float a = texelFetch(lut, ivec2(k, 0), 0)[c];
-  return a + (f - float(k)) * (texelFetch(lut, ivec2(k + 1, 0), 0)[c] - a);
-}
-void main() {
-""" + _PIXEL + """  vec3 x = texelFetch(img, p, 0).rgb;
-  vec3 y = vec3(lookup(x.r, 0), lookup(x.g, 1), lookup(x.b, 2));
-  float l = dot(luma, y);
-  gl_FragData[0] = vec4(clamp(vec3(l) + saturation * (y - vec3(l)), 0.0, 1.0), 1.0);
+  gl_FragData[0] = vec4(post(rgb, p, size), 1.0);
 }
 """,
     # one direction of the separable Gaussian; the weights come from effects.gaussian_weights (the same
     # float32 numbers as the numba pass); clamp-to-edge wrap = clamped indices. mode 1: the vertical
     # pass of the unsharp mask, fused with x + amount (x - blur) clipped (x from `orig`).
     "gauss_1d": _HEADER + f"uniform sampler2D img;\nuniform sampler2D orig;\nuniform int R;\n"
-    f"uniform float wts[{MAX_TAPS}];\nuniform vec2 dir;\nuniform int mode;\nuniform float amount;\n" + """
+    f"uniform float wts[{MAX_TAPS}];\nuniform vec2 dir;\nuniform int mode;\nuniform float amount;\n"
+    "//EPILOGUE::Dec\n" + """
 void main() {
-  vec2 size = vec2(textureSize(img, 0));
-  vec2 inv = 1.0 / size;
-  vec2 uv = (floor(texCoord * size) + 0.5) * inv;
+  ivec2 size = textureSize(img, 0);
+  vec2 inv = 1.0 / vec2(size);
+  ivec2 p = ivec2(texCoord * vec2(size));
+  vec2 uv = (vec2(p) + 0.5) * inv;
   vec2 step_uv = dir * inv;
   vec3 acc = vec3(0.0);
   for (int k = 0; k <= 2 * R; ++k) {
@@ -130,7 +220,7 @@ void main() {
     vec3 x = texture(orig, uv).rgb;
     acc = clamp(x + amount * (x - acc), 0.0, 1.0);
   }
-  gl_FragData[0] = vec4(acc, 1.0);
+  gl_FragData[0] = vec4(post(acc, p, size), 1.0);
 }
 """,
     # half resolution: the 2x2 mean of the part above threshold in luminance (effects._bright_half)
@@ -153,62 +243,39 @@ void main() {
 }
 """,
     # img + k up(low), low at half resolution read bilinearly at ((i + 1/2) / 2, (j + 1/2) / 2)
-    "add_upsampled": _HEADER + "uniform sampler2D img;\nuniform sampler2D low;\nuniform float k;\n" + _BILINEAR + """
+    "add_upsampled": _HEADER + "uniform sampler2D img;\nuniform sampler2D low;\nuniform float k;\n"
+    "//EPILOGUE::Dec\n" + _BILINEAR + """
 void main() {
 """ + _PIXEL + """  float x = (float(p.x) + 0.5) * 0.5, y = (float(p.y) + 0.5) * 0.5;
   vec3 up = vec3(bilinear(low, 0, x, y), bilinear(low, 1, x, y), bilinear(low, 2, x, y));
-  gl_FragData[0] = vec4(texelFetch(img, p, 0).rgb + k * up, 1.0);
+  gl_FragData[0] = vec4(post(texelFetch(img, p, 0).rgb + k * up, p, size), 1.0);
 }
 """,
-    # counter-based Gaussian noise, the same field as effects.noise_field (hash32 = lowbias32)
-    "noise": _HEADER + "uniform sampler2D img;\nuniform float shot;\nuniform float rd;\nuniform int key_bits;\n" + """
-uint hash32(uint x) {
-  x ^= x >> 16; x *= 0x7feb352du; x ^= x >> 15; x *= 0x846ca68bu; x ^= x >> 16;
-  return x;
-}
-float unit24(uint x) { return (float(x >> 8) + 0.5) * (1.0 / 16777216.0); }
-float normal(uint n, uint key) {
-  uint m2 = n & ~1u;
-  float r = sqrt(-2.0 * log(unit24(hash32(hash32(m2) ^ key))));
-  float angle = 6.2831853071795865 * unit24(hash32(hash32(m2 + 1u) ^ key));
-  return (n & 1u) == 0u ? r * cos(angle) : r * sin(angle);
-}
+    # the DoF source, padded by `pad` texels of reach -1 (never inside a disc) so that the gather needs
+    # no bounds test: (r w, g w, b w, reach^2), w = 1 / (pi max(reach^2 - 1/4, 1/4)) as effects._dof_weight
+    "dof_source": _HEADER + "uniform sampler2D img;\nuniform sampler2D reach2;\nuniform int pad;\n" + """
 void main() {
-""" + _PIXEL + """  vec3 x = texelFetch(img, p, 0).rgb;
-  uint key = uint(key_bits);  // the uint32 key passed through a signed uniform, same bits
-  uint n = uint(p.y * size.x + p.x) * 3u;
-  vec3 z = vec3(normal(n, key), normal(n + 1u, key), normal(n + 2u, key));
-  vec3 sd = sqrt(max(x, 0.0) * shot + rd * rd);
-  gl_FragData[0] = vec4(max(x + sd * z, 0.0), 1.0);
-}
-""",
-    # (r w, g w, b w, reach^2), w = 1 / (pi max(reach^2 - 1/4, 1/4)) as effects._dof_weight
-    "dof_source": _HEADER + "uniform sampler2D img;\nuniform sampler2D reach2;\n" + """
-void main() {
-""" + _PIXEL + """  float r2 = texelFetch(reach2, p, 0).r;
-  float w = 1.0 / (3.14159265358979 * max(r2 - 0.25, 0.25));
-  gl_FragData[0] = vec4(texelFetch(img, p, 0).rgb * w, r2);
-}
-""",
-    # scatter-as-gather: sum of the sources whose disc covers p; the source texture is clamped to a
-    # border of reach -1 (never inside a disc), so taps need no bounds test
-    "depth_of_field": _HEADER + "uniform sampler2D src;\nuniform int R;\nuniform float r2max;\n" + """
-void main() {
-  vec2 size = vec2(textureSize(src, 0));
-  vec2 inv = 1.0 / size;
-  vec2 uv = (floor(texCoord * size) + 0.5) * inv;
-  vec4 acc = vec4(0.0);
-  for (int dj = -R; dj <= R; ++dj) {
-    float dj2 = float(dj * dj);
-    int span = int(floor(sqrt(max(r2max - dj2, 0.0))));
-    for (int di = -span; di <= span; ++di) {
-      vec4 s = texture(src, uv + vec2(float(di), float(dj)) * inv);
-      float w = 1.0 / (3.14159265358979 * max(s.a - 0.25, 0.25));
-      acc += (float(di * di) + dj2 <= s.a) ? vec4(s.rgb, w) : vec4(0.0);
-    }
+  ivec2 size = textureSize(img, 0);
+  ivec2 p = ivec2(texCoord * vec2(size + 2 * pad)) - ivec2(pad);
+  if (p.x < 0 || p.y < 0 || p.x >= size.x || p.y >= size.y) {
+    gl_FragData[0] = vec4(0.0, 0.0, 0.0, -1.0);
+  } else {
+    float r2 = texelFetch(reach2, p, 0).r;
+    float w = 1.0 / (3.14159265358979 * max(r2 - 0.25, 0.25));
+    gl_FragData[0] = vec4(texelFetch(img, p, 0).rgb * w, r2);
   }
-  gl_FragData[0] = vec4(acc.rgb / acc.a, 1.0);
 }
+""",
+    "dof_gather": _dof_gather(*DOF_BLOCK),
+    # the gather's blocks back to one image: pixel p is layer (p mod block) of block p / block
+    "dof_unpack": _HEADER + "uniform sampler3D blocks;\nuniform ivec2 out_size;\n//EPILOGUE::Dec\n" + f"""
+void main() {{
+  ivec2 size = out_size;
+  ivec2 p = ivec2(texCoord * vec2(out_size));
+  ivec2 b = p / ivec2({DOF_BLOCK[0]}, {DOF_BLOCK[1]});
+  ivec2 k = p - b * ivec2({DOF_BLOCK[0]}, {DOF_BLOCK[1]});
+  gl_FragData[0] = vec4(post(texelFetch(blocks, ivec3(b, k.y * {DOF_BLOCK[0]} + k.x), 0).rgb, p, size), 1.0);
+}}
 """,
     # lens flare ghosts and halo at half resolution (lens_flare._features); ghosts (s, r, g, b)
     "flare_features": _HEADER + "uniform sampler2D half_res;\nuniform sampler2D quarter;\nuniform vec2 centre;\n"
@@ -243,3 +310,17 @@ void main() {
 }
 """,
 }
+
+
+@functools.lru_cache(maxsize=None)
+def source(name: str, epilogue: tuple[str, ...] = ()) -> str:
+    """The fragment shader ``name`` with the pointwise effects ``epilogue`` applied, in order, to what it
+    writes (``post()``; the identity for an empty epilogue)."""
+    fs = SHADERS[name]
+    if "//EPILOGUE::Dec" not in fs:
+        if epilogue:
+            raise ValueError(f"pass {name!r} takes no pointwise epilogue")
+        return fs
+    calls = "".join(f"  x = fx_{effect}(x, p, size);\n" for effect in epilogue)
+    dec = "".join(_POINTWISE[effect] for effect in dict.fromkeys(epilogue))
+    return fs.replace("//EPILOGUE::Dec", dec + "vec3 post(vec3 x, ivec2 p, ivec2 size) {\n" + calls + "  return x;\n}\n")

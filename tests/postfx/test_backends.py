@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import postfx
-from postfx import osmesa
+from postfx import effects, osmesa
 from postfx.params import (EFFECTS, Bloom, Blur, ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask, LensFlare,
                            SensorNoise, Sharpen, Tonemap)
 
@@ -78,3 +78,55 @@ def test_missing_osmesa_names_the_package_and_auto_falls_back(monkeypatch):
     with pytest.raises(postfx.OSMesaUnavailable, match="libosmesa6"):
         postfx.apply_chain(hdr, depth, chain, LENS, backend="osmesa")
     assert postfx.apply_chain(hdr, depth, chain, LENS, backend="auto").backend_used == "numpy"
+
+
+@needs_osmesa
+@pytest.mark.osmesa
+@pytest.mark.parametrize("shape", [(23, 37), (70, 90)])
+def test_blocked_dof_gather_matches_numpy_on_odd_sizes_and_random_coc(shape):
+    """Partial 4x2 blocks and 16 px tiles at the image edge, every pixel with its own CoC (up to 6 px)."""
+    rng = np.random.default_rng(3)
+    h, w = shape
+    hdr = (rng.random((h, w, 3)) * 4.0).astype(np.float32)
+    depth = (0.05 + rng.random((h, w)) * 0.2).astype(np.float32)
+    depth[:, : w // 2] = 0.1  # the left half in focus: at 90 px its first tiles get a bound of 1/4
+    p = DepthOfField(focus_distance=0.1, aperture=0.002, max_radius_px=6.0)
+    lens = postfx.Lens(70.0, w, h)
+    if w == 90:
+        assert osmesa.dof_tiles(effects.dof_reach2(effects.coc_radius_px(depth, p, 70.0, w)))[:, 0].max() == 0.25
+    ref = postfx.apply_effect("depth_of_field", hdr, depth, p, lens)
+    gpu = osmesa.apply_effect("depth_of_field", hdr, depth, p, lens)
+    assert np.abs(ref - gpu).max() <= 1e-5 * np.abs(ref).max()
+
+
+def test_dof_tiles_bound_every_source_that_reaches_the_tile():
+    rng = np.random.default_rng(5)
+    reach2 = (rng.random((40, 50)) ** 4 * 30.0 + 0.25).astype(np.float32)
+    reach2[5, 7] = 100.25  # one wide disc (r = 10)
+    tiles = osmesa.dof_tiles(reach2)
+    tile = osmesa.DOF_TILE
+    assert tiles.shape == (3, 4)
+    jq, iq = np.mgrid[0:40, 0:50]
+    for ty in range(3):
+        for tx in range(4):
+            bound = 0.0  # brute force: the largest reach2 of the sources whose disc covers a pixel of the tile
+            for j in range(ty * tile, min((ty + 1) * tile, 40)):
+                for i in range(tx * tile, min((tx + 1) * tile, 50)):
+                    covers = (jq - j) ** 2 + (iq - i) ** 2 <= reach2
+                    bound = max(bound, float(reach2[covers].max()))
+            assert tiles[ty, tx] >= bound
+
+
+@needs_osmesa
+@pytest.mark.osmesa
+def test_fused_pointwise_passes_equal_the_separate_passes():
+    hdr, depth = _inputs()
+    chain = [(n, CASES[n]) for n in postfx.DEFAULT_ORDER]
+    fused, seconds, _ = osmesa.run_chain(hdr, depth, chain, LENS, seed=3)
+    separate, separate_seconds, _ = osmesa.run_chain(hdr, depth, chain, LENS, seed=3, fuse=False)
+    assert "blur+sensor_noise+tonemap+color_grade" in seconds and "sharpen+laparoscope_mask" in seconds
+    assert set(separate_seconds) == set(postfx.DEFAULT_ORDER)
+    assert np.abs(fused - separate).max() <= 1e-6
+    res = postfx.apply_chain(hdr, depth, chain, LENS, backend="osmesa", seed=3)  # seconds keyed by effect names
+    assert res.fused == {"blur": ["sensor_noise", "tonemap", "color_grade"], "sharpen": ["laparoscope_mask"]}
+    assert set(res.seconds) == set(postfx.DEFAULT_ORDER) - {"sensor_noise", "tonemap", "color_grade", "laparoscope_mask"}
