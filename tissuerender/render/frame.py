@@ -159,24 +159,36 @@ def radical_inverse(i: np.ndarray) -> np.ndarray:
     return out
 
 
+def sobol2(i: np.ndarray) -> np.ndarray:
+    """Second coordinate of the 2D Sobol' sequence (Kollig & Keller 2002) for indices ``i``."""
+    n = np.asarray(i).astype(np.uint64)
+    r = np.zeros(n.shape, np.uint64)
+    v = np.full(n.shape, np.uint64(1 << 31))
+    while np.any(n):
+        r ^= np.where(n & np.uint64(1), v, np.uint64(0))
+        n = n >> np.uint64(1)
+        v ^= v >> np.uint64(1)
+    return r / 4294967296.0
+
+
 def light_sample(s: int, m: np.ndarray, rotation: np.ndarray, pos: np.ndarray, centre, ln, eu, ev,
                  stride: int = 1, phase: np.ndarray | int = 0):
     """Sample ``s`` of ``m`` on the light for each shading point: the point q, the unit direction wi
     towards it and the weight ``cos(theta_l) / r^2 * A / m`` (Qian eq. 6.14 with the A/m correction).
 
-    Each of the ``stride`` supersamples of a pixel (``phase`` k = 0 ... stride - 1, sharing the pixel's
-    rotation) draws a whole m-point Hammersley set (u = s/m, v = radical inverse of s), shifted by
-    k / (m stride) in u and by radinv(k) / P in v (P the power of two >= m): each supersample's set is
-    complete on its own (its estimate converges to the full integral, so per-subsample estimators such
-    as the reflection-cone split stay consistent) and together they fill the strata between each other's
-    points. (Interleaving one m-stride-point Hammersley set instead confines each supersample to a
-    1/stride strip of the light in v, which the cone split turned into a per-pixel error that did not
-    fall with m.)"""
+    The points are the 2D Sobol' sequence (van der Corput and Sobol's second coordinate, a
+    (0,2)-sequence; Kollig & Keller 2002), rotated per pixel: supersample k (``phase``, 0 ... stride - 1,
+    sharing the pixel's rotation) takes indices k P ... k P + m - 1 (P the power of two >= m). Each block
+    of P is itself a stratified (0, log2 P, 2)-net, so every supersample's estimate converges to the full
+    integral on its own (per-supersample estimators such as the reflection-cone split stay consistent),
+    and the blocks together are a finer net over the pixel. (Interleaving one Hammersley set instead
+    confined each supersample to a strip of the light: a per-pixel error that did not fall with m.)"""
     area = 4.0 * np.linalg.norm(eu) * np.linalg.norm(ev)
     k = np.asarray(phase, np.int64) + np.zeros(m.shape, np.int64)
     p2 = 2 ** np.ceil(np.log2(np.maximum(m, 1))).astype(np.int64)
-    u = np.mod((s * stride + k) / (m * stride) + rotation[:, 0], 1.0)
-    v = np.mod(radical_inverse(np.full(m.shape, s)) + radical_inverse(k) / p2 + rotation[:, 1], 1.0)
+    n = k * p2 + s
+    u = np.mod(radical_inverse(n) + rotation[:, 0], 1.0)
+    v = np.mod(sobol2(n) + rotation[:, 1], 1.0)
     q = centre + (2.0 * u - 1.0)[:, None] * eu + (2.0 * v - 1.0)[:, None] * ev
     wi = q - pos
     d2 = np.maximum(np.einsum("ij,ij->i", wi, wi), 1e-12)

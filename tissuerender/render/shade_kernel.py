@@ -66,14 +66,27 @@ def _refracted_cos(mu, ior):
 
 
 @njit(cache=True, inline="always")
+def _sobol2(n):
+    """Second coordinate of the 2D Sobol' sequence (Kollig & Keller 2002), in [0, 1)."""
+    r = 0
+    v = 1 << 31
+    while n > 0:
+        if n & 1:
+            r ^= v
+        n >>= 1
+        v ^= v >> 1
+    return r / 4294967296.0
+
+
+@njit(cache=True, inline="always")
 def _sample_point(i, s, mi, rotation, stride, phase, centre, eu, ev):
-    """Point s of the m-point Hammersley set of supersample ``phase[i]`` (frame.light_sample)."""
-    k = phase[i]
+    """Light sample s of m for supersample ``phase[i]`` (frame.light_sample)."""
     p2 = 1
     while p2 < mi:
         p2 *= 2
-    u = ((s * stride + k) / (mi * stride) + rotation[i, 0]) % 1.0
-    v = (_radical_inverse(s) + _radical_inverse(k) / p2 + rotation[i, 1]) % 1.0
+    n = phase[i] * p2 + s
+    u = (_radical_inverse(n) + rotation[i, 0]) % 1.0
+    v = (_sobol2(n) + rotation[i, 1]) % 1.0
     return (centre[0] + (2.0 * u - 1.0) * eu[0] + (2.0 * v - 1.0) * ev[0],
             centre[1] + (2.0 * u - 1.0) * eu[1] + (2.0 * v - 1.0) * ev[1],
             centre[2] + (2.0 * u - 1.0) * eu[2] + (2.0 * v - 1.0) * ev[2])
