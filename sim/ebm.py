@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim import constitutive, ebm_kernels
+from sim import constitutive, ebm_blocked, ebm_kernels
 from sim.integrators import SimulationDiverged
 from sim.model import Model, State
 from sim.prony import PronyHistory
@@ -73,7 +73,7 @@ def energy_density(name: str, F, mu, lam, eta=None, a0=None, vl=None):
         dbar = m * (1.0 + q) + q
         psi = psi + 0.5 * eta * dbar * dbar
     return psi
-KERNELS = ("numba", "numpy")
+KERNELS = ("blocked", "numba", "numpy")
 MAX_STRETCH = 10.0  # |F|_F / sqrt(3) above this after a step: no tissue does that, the iterations failed
 
 
@@ -109,8 +109,10 @@ class EBM:
         self.red_history: list[float] = []
         self.work_in = 0.0
         self._last_load_force = model.nodal_external_force()  # at rest: no reaction yet
-        if self.kernel == "numba":
+        if self.kernel != "numpy":
             self._prepare_kernels()
+        if self.kernel == "blocked":
+            self._prepare_blocked()
 
     # -- numba kernels (sim.ebm_kernels) --------------------------------------------------------------
     def _prepare_kernels(self):
@@ -133,6 +135,33 @@ class EBM:
         self._relax = (1.0, np.zeros((1, 3, 3)), np.zeros(1))
         self._relax_h = None
 
+    def _prepare_blocked(self):
+        """Block layout, incidence lists and boundary data of ``sim.ebm_blocked``."""
+        m = self.model
+        kinematic = m.kinematic_mask()
+        (self._node_index, self._params, self._free_nodes, self._free_start, self._free_slot, self._kin_nodes,
+         self._kin_start, self._kin_slot) = ebm_blocked.pack(self._tets, self._Dm_inv, self._volume, self._mu,
+                                                             self._lam, self._eta, self._fibre, self._w, m.n_nodes,
+                                                             ~kinematic)
+        n_blocks = self._node_index.shape[0]
+        self._out = np.zeros((n_blocks, ebm_blocked.N_OUT * ebm_blocked.LANES))
+        self._scratch = np.zeros(9 * ebm_blocked.LANES)
+        self._relax_blocks = np.zeros((1, ebm_blocked.N_RELAX * ebm_blocked.LANES))
+        # kinematic targets (Model.kinematic_targets): X, or X + fraction(t) displacement of the last prescribed
+        # group that lists the node
+        group = np.full(m.n_nodes, -1, np.int64)
+        displacement = np.zeros((m.n_nodes, 3))
+        for k, p in enumerate(m.prescribed):
+            group[p.nodes] = k
+            displacement[p.nodes] = np.asarray(p.displacement, dtype=np.float64)
+        self._kin_group = np.ascontiguousarray(group[self._kin_nodes])
+        self._kin_displacement = np.ascontiguousarray(displacement[self._kin_nodes])
+        self._group_t0 = np.array([float(p.t_start) for p in m.prescribed] + [0.0])
+        self._group_t1 = np.array([float(p.t_end) for p in m.prescribed] + [0.0])
+        self._X = np.ascontiguousarray(m.X, dtype=np.float64)
+        self._f_ext = np.ascontiguousarray(self.f_ext, dtype=np.float64)
+        self._last_load_force = np.ascontiguousarray(self._last_load_force, dtype=np.float64)
+
     def _relaxation(self, h):
         """(a, Gamma, g) of the current Prony history for a step h: ``S^ = a S - Gamma``, ``Psi^ = a Psi - g``."""
         if self.prony is None:
@@ -148,6 +177,8 @@ class EBM:
                 g += B * self.prony.g[i]
             self._relax = (a, np.ascontiguousarray(Gamma), g)
             self._relax_h = h
+            if self.kernel == "blocked":
+                self._relax_blocks = ebm_blocked.pack_relaxation(Gamma, g, self._node_index.shape[0])
         return True, self._relax
 
     def _kernel_args(self, h):
@@ -204,7 +235,7 @@ class EBM:
 
     def nodal_forces(self, x, h=1.0):
         """Internal forces -sum_k dW_k/dx per node (with the current viscoelastic relaxation)."""
-        if self.kernel == "numba":
+        if self.kernel != "numpy":
             return self._forces_and_energy(x, h)[0]
         _, grads, _ = self._stress(x, h)
         f = np.zeros_like(x)
@@ -213,6 +244,15 @@ class EBM:
         return f
 
     def _iterate(self, x, h):
+        if self.kernel == "blocked":
+            x = np.ascontiguousarray(x, dtype=np.float64)
+            prony, (a, _, _) = self._relaxation(h)
+            done = ebm_blocked.sweeps(x, self._node_index, self._params, self._relax_blocks, self._out, self._scratch,
+                                      self._free_nodes, self._free_start, self._free_slot, self._node_scale,
+                                      self._code, prony, a, self.iterations)
+            if done < self.iterations:
+                raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
+            return x
         if self.kernel == "numba":
             x = np.ascontiguousarray(x)
             prony, (a, Gamma, g) = self._relaxation(h)
@@ -239,6 +279,8 @@ class EBM:
 
     # -- one step -------------------------------------------------------------------------------------
     def step(self, state: State, dt: float) -> State:
+        if self.kernel == "blocked":
+            return self._step_blocked(state, dt)
         m = self.model
         h = dt / self.substeps
         x, v, t = state.x.copy(), state.v.copy(), state.t
@@ -252,14 +294,43 @@ class EBM:
             x = self._iterate(x, h)  # 5.7-5.9, 5.14
             v = (x - x_old) / h  # 5.15 (our reading)
             stretch = self._account_energy(x, x_old, kin, x_kin_before, h)
-            if not stretch <= MAX_STRETCH:
-                raise SimulationDiverged(
-                    f"ebm: an element is stretched {stretch:.3g}x its rest size (|F|/sqrt(3)) at t = {t:.6g} s: the "
-                    f"energy-balance iterations no longer hold the body together; more iterations per step, "
-                    f"substeps or a smaller dt may help")
+            self._check_stretch(stretch, t)
             if self.prony is not None:
                 self._commit_prony(x, h)
         return State(x=x, v=v, t=t, private=state.private)
+
+    def _step_blocked(self, state: State, dt: float) -> State:
+        """``step`` with each substep in one compiled call (``sim.ebm_blocked.step``)."""
+        h = dt / self.substeps
+        x = np.ascontiguousarray(state.x, dtype=np.float64)
+        v = np.ascontiguousarray(state.v, dtype=np.float64)
+        t = state.t
+        for _ in range(self.substeps):
+            x_old, v_old = x, v
+            x, v = np.empty_like(x_old), np.empty_like(x_old)
+            t += h
+            prony, (a, _, _) = self._relaxation(h)
+            done, work, strain, stretch = ebm_blocked.step(
+                x_old, v_old, x, v, t, h, self._X, self._f_ext, self._w, self._kin_nodes, self._kin_group,
+                self._kin_displacement, self._group_t0, self._group_t1, self._node_index, self._params,
+                self._relax_blocks, self._out, self._scratch, self._free_nodes, self._free_start, self._free_slot,
+                self._kin_start, self._kin_slot, self._node_scale, self._last_load_force, self.model.n_tets,
+                self._code, prony, a, self.iterations)
+            if done < self.iterations:
+                raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
+            self.work_in += work
+            self.red_history.append(abs(self.work_in - strain) / max(abs(self.work_in), 1e-300))
+            self._check_stretch(stretch, t)
+            if self.prony is not None:
+                self._commit_prony(x, h)
+        return State(x=x, v=v, t=t, private=state.private)
+
+    def _check_stretch(self, stretch, t):
+        if not stretch <= MAX_STRETCH:
+            raise SimulationDiverged(
+                f"ebm: an element is stretched {stretch:.3g}x its rest size (|F|/sqrt(3)) at t = {t:.6g} s: the "
+                f"energy-balance iterations no longer hold the body together; more iterations per step, "
+                f"substeps or a smaller dt may help")
 
     def _account_energy(self, x, x_old, kin, x_kin_before, h):
         """Accumulate the external work (trapezoidal) and record the relative energy difference."""

@@ -67,6 +67,32 @@ def _j_minus_two_thirds(J, j):
     return np.nan, np.nan
 
 
+# J^(-1/3) seed from the bit pattern: bits(J) / 2^52 ~ log2 J + 1023, so bits(y) ~ (4/3 1023 - c) 2^52 - bits(J) / 3;
+# c = 0.066 minimises the seed's largest relative error over a binade (3.4 %)
+_INV_CBRT_MAGIC = (4.0 / 3.0 * 1023.0 - 0.066) * 2.0 ** 52
+
+
+@njit(cache=True, inline="always")
+def _inverse_cube_root(J):
+    """J^(-1/3) for normal J > 0 (NaN for J <= 0) without a branch or a libm call, so that a loop over
+    lanes vectorises: a seed from the exponent bits (relative error <= 3.4 %), then three steps of
+    ``y <- y (1 + r/3 + 2 r^2 / 9)`` with ``r = 1 - J y^3`` (the series of ``(1 - r)^(-1/3)``, error
+    ~ 14/81 r^3 per step): 3.4e-2 -> 2e-4 -> 2e-11 -> rounding. Measured against 1 / cbrt(J) over
+    J in [1e-260, 1e260]: largest relative difference 3.3e-16, mean 5.6e-17."""
+    y = np.int64(_INV_CBRT_MAGIC - np.float64(np.float64(J).view(np.int64)) * (1.0 / 3.0)).view(np.float64)
+    for _ in range(3):
+        r = 1.0 - J * (y * y * y)
+        y = y + y * r * (1.0 / 3.0 + (2.0 / 9.0) * r)
+    return y if J > 0.0 else np.nan
+
+
+@njit(cache=True, inline="always")
+def _j_minus_two_thirds_branch_free(J, j):
+    """``_j_minus_two_thirds`` with the vectorisable :func:`_inverse_cube_root` (NaN for J <= 0 through y)."""
+    y = _inverse_cube_root(J)
+    return y * y, -j / (J * (y * y + y + 1.0)) * (y + 1.0)
+
+
 @njit(cache=True, inline="always")
 def _displacement_invariants(F):
     """(tr H, H:H, I2(H), det H) of the displacement gradient H = F - I, so that J - 1 = tr H + I2 + det H
@@ -85,6 +111,14 @@ def _displacement_invariants(F):
 @njit(cache=True, inline="always")
 def _energy_piola(code, F, mu, lam, eta, ax, ay, az):
     """(Psi, P as a row-major 9-tuple) of one tet."""
+    return _energy_piola_root(code, F, mu, lam, eta, ax, ay, az, False)
+
+
+@njit(cache=True, inline="always")
+def _energy_piola_root(code, F, mu, lam, eta, ax, ay, az, branch_free):
+    """:func:`_energy_piola` with the choice of J^(-1/3): ``branch_free`` (a constant at every call site, so the
+    compiler drops the other branch) takes :func:`_inverse_cube_root`, which lets a loop over lanes vectorise
+    (sim.ebm_blocked); otherwise ``1 / cbrt(J)``."""
     f00, f01, f02, f10, f11, f12, f20, f21, f22 = F
     if code == STABLE_NEO_HOOKEAN:
         cof = _cofactor(F)
@@ -131,7 +165,10 @@ def _energy_piola(code, F, mu, lam, eta, ax, ay, az):
     tr, HH, I2, detH = _displacement_invariants(F)
     j = tr + I2 + detH  # J - 1
     d = 2.0 * tr + HH  # I1 - 3
-    Jm23, m = _j_minus_two_thirds(J, j)
+    if branch_free:
+        Jm23, m = _j_minus_two_thirds_branch_free(J, j)
+    else:
+        Jm23, m = _j_minus_two_thirds(J, j)
     psi = 0.5 * mu * (3.0 * m + d + m * d) + 0.5 * kappa * j * j  # J^(-2/3) I1 - 3 = 3 m + d + m d
     a = mu * Jm23
     b = a * I1 / 3.0 * inv_J  # times cof = times J F^-T
