@@ -16,7 +16,10 @@ of the two totals measured back to back: the machine is shared, compare within o
 three with ``_rendered``, "<effect>_<backend>_ms" (each effect alone, on the image it receives in
 the synthetic chain, medians; in the chain the osmesa backend draws a run of pointwise effects in
 the last pass of the effect before it, so the chain total is less than their sum), numpy_ms_core
-and osmesa_ms_core (the sum of the required effects alone: DoF, CA, tone map, grade, mask).
+and osmesa_ms_core (the sum of the required effects alone: DoF, CA, tone map, grade, mask),
+numpy_cpu_ms_total / osmesa_cpu_ms_total (and _rendered): the median CPU time of the process over
+the chain, all threads (numba's and llvmpipe's), which a busy machine inflates less than the wall
+time (OpenMP workers spinning while they wait count too).
 Each figure is the median of several runs after one warm-up (compilation, context creation).
 """
 from __future__ import annotations
@@ -28,6 +31,7 @@ import os
 import platform
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 # This script is called postfx.py: keep its own folder off the import path so that
@@ -95,10 +99,13 @@ def time_chains(hdr, depth, lens, chain, backends, repeats):
     for backend in backends:  # warm-up: compilation, context creation, shader compilation
         postfx.apply_chain(hdr, depth, chain, lens, backend=backend, seed=1)
     runs: dict = {b: [] for b in backends}
+    cpu: dict = {b: [] for b in backends}
     for r in range(repeats):
         for backend in backends:
+            c0 = time.process_time()
             runs[backend].append(postfx.apply_chain(hdr, depth, chain, lens, backend=backend, seed=r))
-    return runs
+            cpu[backend].append(time.process_time() - c0)
+    return runs, cpu
 
 
 def time_effects(hdr, depth, lens, chain, backends, repeats):
@@ -132,11 +139,13 @@ def main() -> None:
     frames = {"": synthetic_frame(), "_rendered": rendered_frame(args.refresh_frame)}
     for suffix, (hdr, depth, lens, chain) in frames.items():
         label = "rendered" if suffix else "synthetic"
-        runs = time_chains(hdr, depth, lens, chain, backends, repeats)
+        runs, cpu = time_chains(hdr, depth, lens, chain, backends, repeats)
         for backend in backends:
             total = float(np.median([run.total_seconds for run in runs[backend]])) * 1e3
+            cpu_ms = float(np.median(cpu[backend])) * 1e3
             result[f"{backend}_ms_total{suffix}"] = round(total, 2)
-            print(f"{label:9s} {backend:7s} chain total {total:8.2f} ms")
+            result[f"{backend}_cpu_ms_total{suffix}"] = round(cpu_ms, 2)
+            print(f"{label:9s} {backend:7s} chain total {total:8.2f} ms (CPU time of all threads {cpu_ms:8.2f} ms)")
         if "osmesa" in backends:
             ratio = float(np.median([o.total_seconds / n.total_seconds for n, o in zip(runs["numpy"], runs["osmesa"])]))
             result[f"osmesa_over_numpy{suffix}"] = round(ratio, 3)

@@ -284,21 +284,56 @@ def gaussian_weights(sigma: float) -> np.ndarray:
 
 
 @njit(cache=True, parallel=True)
-def _convolve_1d(img, w, horizontal):
-    """One separable pass with clamped edges: along rows (horizontal) or columns."""
+def _convolve_rows(img, w):
+    """The horizontal pass with clamped edges. Each row is copied once with its R edge pixels
+    repeated, then every tap is one multiply-add over the whole contiguous row (pixel and channel
+    interleaved, so the offset of tap k is k * channels): this loop vectorises, where a clamped index
+    per tap did not. Each output still sums its taps in the order k = 0 .. 2R from zero, in float32,
+    as the shader does."""
     h, wd, nc = img.shape
     R = (w.shape[0] - 1) // 2
+    n = wd * nc
     out = np.empty_like(img)
+    flat = out.reshape(h, n)
     for j in prange(h):
-        for i in range(wd):
+        row = np.empty((wd + 2 * R) * nc, np.float32)
+        for i in range(wd + 2 * R):
+            src = min(max(i - R, 0), wd - 1)
             for c in range(nc):
-                acc = np.float32(0.0)
-                for k in range(w.shape[0]):
-                    if horizontal:
-                        acc += w[k] * img[j, min(max(i + k - R, 0), wd - 1), c]
-                    else:
-                        acc += w[k] * img[min(max(j + k - R, 0), h - 1), i, c]
-                out[j, i, c] = acc
+                row[i * nc + c] = img[j, src, c]
+        acc = np.zeros(n, np.float32)
+        for k in range(w.shape[0]):
+            wk = w[k]
+            off = k * nc
+            for f in range(n):
+                acc[f] += wk * row[off + f]
+        flat[j, :] = acc
+    return out
+
+
+@njit(cache=True, parallel=True)
+def _convolve_columns(img, w, orig, amount, unsharp):
+    """The vertical pass with clamped edges, whole rows at a time (vectorised); with ``unsharp``, fused
+    with the unsharp mask ``x + amount (x - blur)`` clipped to [0, 1] (x from ``orig``)."""
+    h, wd, nc = img.shape
+    R = (w.shape[0] - 1) // 2
+    n = wd * nc
+    src = img.reshape(h, n)
+    x = orig.reshape(h, n)
+    out = np.empty_like(img)
+    flat = out.reshape(h, n)
+    zero, one = np.float32(0.0), np.float32(1.0)
+    for j in prange(h):
+        acc = np.zeros(n, np.float32)
+        for k in range(w.shape[0]):
+            wk = w[k]
+            jj = min(max(j + k - R, 0), h - 1)
+            for f in range(n):
+                acc[f] += wk * src[jj, f]
+        if unsharp:
+            for f in range(n):
+                acc[f] = min(max(x[j, f] + amount * (x[j, f] - acc[f]), zero), one)
+        flat[j, :] = acc
     return out
 
 
@@ -306,35 +341,18 @@ def gaussian_blur(img: np.ndarray, sigma: float) -> np.ndarray:
     """Separable Gaussian blur with clamped edges (the GLSL passes do the same taps)."""
     w = gaussian_weights(sigma)
     img = np.ascontiguousarray(img, dtype=np.float32)
-    return _convolve_1d(_convolve_1d(img, w, True), w, False)
+    return _convolve_columns(_convolve_rows(img, w), w, img, np.float32(0.0), False)
 
 
 def blur(img: np.ndarray, p: Blur) -> np.ndarray:
     return gaussian_blur(img, p.sigma_px)
 
 
-@njit(cache=True, parallel=True)
-def _unsharp_vertical(img, horizontal, w, amount):
-    """The vertical Gaussian pass fused with ``x + amount (x - blur(x))`` clipped to [0, 1]."""
-    h, wd, nc = img.shape
-    R = (w.shape[0] - 1) // 2
-    out = np.empty_like(img)
-    for j in prange(h):
-        for i in range(wd):
-            for c in range(nc):
-                acc = np.float32(0.0)
-                for k in range(w.shape[0]):
-                    acc += w[k] * horizontal[min(max(j + k - R, 0), h - 1), i, c]
-                x = img[j, i, c]
-                out[j, i, c] = min(max(x + amount * (x - acc), np.float32(0.0)), np.float32(1.0))
-    return out
-
-
 def sharpen(img: np.ndarray, p: Sharpen) -> np.ndarray:
     """Unsharp mask ``x + amount (x - blur_sigma(x))`` clipped to [0, 1]."""
     w = gaussian_weights(p.sigma_px)
     img = np.ascontiguousarray(img, dtype=np.float32)
-    return _unsharp_vertical(img, _convolve_1d(img, w, True), w, np.float32(p.amount))
+    return _convolve_columns(_convolve_rows(img, w), w, img, np.float32(p.amount), True)
 
 
 def bright_part(img: np.ndarray, threshold: float) -> np.ndarray:

@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from postfx import shaders
-from postfx.shaders import DOF_BLOCK, DOF_TILE, MAX_TAPS, POINTWISE
+from postfx.shaders import DOF_BLOCK, DOF_TILE, GAUSS_BLOCK, MAX_TAPS, POINTWISE
 
 GL_FLOAT = 0x1406
 GL_RGBA = 0x1908
@@ -221,22 +221,25 @@ class Context:
 
 
 def _gaussian(ctx, tex, sigma, orig=None, amount=0.0, epilogue=None):
-    """Separable Gaussian (effects.gaussian_blur); with ``orig``, the vertical pass is the unsharp
-    mask's ``orig + amount (orig - blur)`` clipped. ``epilogue``: pointwise effects fused into the
-    vertical pass (``_Epilogue``)."""
+    """Separable Gaussian (effects.gaussian_blur) in blocks of GAUSS_BLOCK outputs per fragment; with
+    ``orig``, the unsharp mask's ``orig + amount (orig - blur)`` clipped. ``epilogue``: pointwise effects
+    fused into the last pass (``_Epilogue``)."""
     from postfx import effects
 
     w, h = tex.GetWidth(), tex.GetHeight()
     weights = effects.gaussian_weights(sigma)
     if weights.size > MAX_TAPS:
         raise ValueError(f"sigma_px = {sigma} needs {weights.size} taps, the shader holds {MAX_TAPS}")
-    common = {"R": (weights.size - 1) // 2, "wts": FloatArray(weights), "amount": float(amount)}
-    horizontal = ctx.draw("gauss_1d", {"img": tex, "orig": tex}, {**common, "dir": (1.0, 0.0), "mode": 0}, w, h)
+    horizontal, vertical = shaders.gauss_passes((weights.size - 1) // 2)
+    wts = FloatArray(weights)
+    bx, by = -(-w // GAUSS_BLOCK), -(-h // GAUSS_BLOCK)
+    rows = ctx.draw(horizontal, {"img": tex}, {"wts": wts, "blocks": IVec2((bx, h))}, bx, h, layers=GAUSS_BLOCK)
+    cols = ctx.draw(vertical, {"rows": rows}, {"wts": wts, "blocks": IVec2((w, by))}, w, by, layers=GAUSS_BLOCK)
+    ctx.release(rows)
     ep = epilogue or _Epilogue.none()
-    out = ctx.draw("gauss_1d", {"img": horizontal, "orig": orig if orig is not None else horizontal, **ep.inputs},
-                   {**common, "dir": (0.0, 1.0), "mode": int(orig is not None), **ep.uniforms}, w, h,
-                   epilogue=ep.names)
-    ctx.release(horizontal)
+    out = ctx.draw("gauss_unpack", {"blocks": cols, "orig": orig if orig is not None else tex, **ep.inputs},
+                   {"mode": int(orig is not None), "amount": float(amount), **ep.uniforms}, w, h, epilogue=ep.names)
+    ctx.release(cols)
     return out
 
 

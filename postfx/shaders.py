@@ -20,7 +20,12 @@ in vec2 texCoord;
 //VTK::Output::Dec
 """
 
+# texture() at a texel centre with nearest filtering is texelFetch there, and llvmpipe runs it about a
+# third faster than texelFetch (which checks bounds and levels); every index below is inside the texture
 _BILINEAR = """
+vec4 texel(sampler2D tex, int x, int y) {
+  return texture(tex, (vec2(x, y) + 0.5) / vec2(textureSize(tex, 0)));
+}
 float bilinear(sampler2D tex, int channel, float x, float y) {
   ivec2 size = textureSize(tex, 0);
   float w = float(size.x), h = float(size.y);
@@ -30,8 +35,23 @@ float bilinear(sampler2D tex, int channel, float x, float y) {
   int y0 = size.y > 1 ? min(int(fy), size.y - 2) : 0;
   float tx = fx - float(x0), ty = fy - float(y0);
   int x1 = min(x0 + 1, size.x - 1), y1 = min(y0 + 1, size.y - 1);
-  float top = texelFetch(tex, ivec2(x0, y0), 0)[channel] * (1.0 - tx) + texelFetch(tex, ivec2(x1, y0), 0)[channel] * tx;
-  float bottom = texelFetch(tex, ivec2(x0, y1), 0)[channel] * (1.0 - tx) + texelFetch(tex, ivec2(x1, y1), 0)[channel] * tx;
+  float top = texel(tex, x0, y0)[channel] * (1.0 - tx) + texel(tex, x1, y0)[channel] * tx;
+  float bottom = texel(tex, x0, y1)[channel] * (1.0 - tx) + texel(tex, x1, y1)[channel] * tx;
+  return top * (1.0 - ty) + bottom * ty;
+}
+// bilinear() of the three channels at the same point: four fetches instead of twelve, the same
+// arithmetic per channel
+vec3 bilinear3(sampler2D tex, float x, float y) {
+  ivec2 size = textureSize(tex, 0);
+  float w = float(size.x), h = float(size.y);
+  float fx = clamp(x - 0.5, 0.0, w - 1.0);
+  float fy = clamp(y - 0.5, 0.0, h - 1.0);
+  int x0 = size.x > 1 ? min(int(fx), size.x - 2) : 0;
+  int y0 = size.y > 1 ? min(int(fy), size.y - 2) : 0;
+  float tx = fx - float(x0), ty = fy - float(y0);
+  int x1 = min(x0 + 1, size.x - 1), y1 = min(y0 + 1, size.y - 1);
+  vec3 top = texel(tex, x0, y0).rgb * (1.0 - tx) + texel(tex, x1, y0).rgb * tx;
+  vec3 bottom = texel(tex, x0, y1).rgb * (1.0 - tx) + texel(tex, x1, y1).rgb * tx;
   return top * (1.0 - ty) + bottom * ty;
 }
 """
@@ -40,7 +60,7 @@ float bilinear(sampler2D tex, int channel, float x, float y) {
 _BILINEAR_ZERO = """
 vec3 texel0(sampler2D tex, ivec2 q) {
   ivec2 size = textureSize(tex, 0);
-  return (q.x < 0 || q.y < 0 || q.x >= size.x || q.y >= size.y) ? vec3(0.0) : texelFetch(tex, q, 0).rgb;
+  return (q.x < 0 || q.y < 0 || q.x >= size.x || q.y >= size.y) ? vec3(0.0) : texture(tex, (vec2(q) + 0.5) / vec2(size)).rgb;
 }
 vec3 bilinear_zero(sampler2D tex, float x, float y) {
   float fx = x - 0.5, fy = y - 0.5;
@@ -112,8 +132,8 @@ float lookup(float x, int c) {
   int n = textureSize(cg_lut, 0).x;
   float f = clamp(x, 0.0, 1.0) * float(n - 1);
   int k = min(int(f), n - 2);
-  float a = texelFetch(cg_lut, ivec2(k, 0), 0)[c];
-  return a + (f - float(k)) * (texelFetch(cg_lut, ivec2(k + 1, 0), 0)[c] - a);
+  float a = texture(cg_lut, vec2((float(k) + 0.5) / float(n), 0.5))[c];  // texel k (nearest, at its centre)
+  return a + (f - float(k)) * (texture(cg_lut, vec2((float(k) + 1.5) / float(n), 0.5))[c] - a);
 }
 vec3 fx_color_grade(vec3 x, ivec2 p, ivec2 size) {
   vec3 y = vec3(lookup(x.r, 0), lookup(x.g, 1), lookup(x.b, 2));
@@ -139,6 +159,56 @@ vec3 fx_laparoscope_mask(vec3 x, ivec2 p, ivec2 size) {
 """,
 }
 
+# -- separable Gaussian ---------------------------------------------------------------------------------
+GAUSS_BLOCK = 4  # outputs per fragment along the pass direction (one draw buffer each)
+
+
+def _gauss_taps(kind: str, R: int) -> str:
+    """Unrolled taps for GAUSS_BLOCK outputs from GAUSS_BLOCK + 2R fetches: each texel fetched once is
+    added to every output it is a tap of, output b summing its taps k = 0 .. 2R in order from zero
+    in float32 with the weights of effects.gaussian_weights (as the numba passes: the same sums)."""
+    lines = []
+    for j in range(GAUSS_BLOCK + 2 * R):
+        lines.append(f"  t = {kind}({j - R});")
+        lines += [f"  a{b} += wts[{j - b}] * t;" for b in range(GAUSS_BLOCK) if 0 <= j - b <= 2 * R]
+    decl = "".join(f"  vec3 a{b} = vec3(0.0);\n" for b in range(GAUSS_BLOCK))
+    out = "".join(f"  gl_FragData[{b}] = vec4(a{b}, 1.0);\n" for b in range(GAUSS_BLOCK))
+    return decl + "  vec3 t;\n" + "\n".join(lines) + "\n" + out
+
+
+@functools.lru_cache(maxsize=None)
+def gauss_passes(R: int) -> tuple[str, str]:
+    """The two passes of a Gaussian of radius R (2R + 1 taps, edges clamped by the clamp-to-edge wrap):
+    horizontal, from an image into blocks of GAUSS_BLOCK columns (a 3D target, layer = column mod
+    block), then vertical, from those into blocks of GAUSS_BLOCK rows; ``gauss_unpack`` reassembles.
+    Registered in SHADERS under the returned names."""
+    horizontal, vertical = f"gauss_h{R}", f"gauss_v{R}"
+    SHADERS[horizontal] = _HEADER + f"""uniform sampler2D img;
+uniform float wts[{2 * R + 1}];
+uniform ivec2 blocks;
+void main() {{
+  vec2 inv = 1.0 / vec2(textureSize(img, 0));
+  ivec2 b = ivec2(texCoord * vec2(blocks));
+  int x0 = b.x * {GAUSS_BLOCK};
+  float v = (float(b.y) + 0.5) * inv.y;
+#define tap(d) texture(img, vec2((float(x0 + d) + 0.5) * inv.x, v)).rgb
+{_gauss_taps("tap", R)}}}
+"""
+    SHADERS[vertical] = _HEADER + f"""uniform sampler3D rows;
+uniform float wts[{2 * R + 1}];
+uniform ivec2 blocks;
+void main() {{
+  ivec2 b = ivec2(texCoord * vec2(blocks));
+  vec3 size = vec3(textureSize(rows, 0));
+  float u = (float(b.x / {GAUSS_BLOCK}) + 0.5) / size.x;
+  float layer = (float(b.x % {GAUSS_BLOCK}) + 0.5) / size.z;
+  int y0 = b.y * {GAUSS_BLOCK};
+#define tap(d) texture(rows, vec3(u, (float(y0 + d) + 0.5) / size.y, layer)).rgb
+{_gauss_taps("tap", R)}}}
+"""
+    return horizontal, vertical
+
+
 # -- depth of field ------------------------------------------------------------------------------------
 DOF_BLOCK = (4, 2)  # output pixels per gather fragment (columns, rows): 8 = the draw buffers every GL 3+ has
 DOF_TILE = 16  # side of the square tiles whose reach bounds the gather loops (a multiple of both block sides)
@@ -161,7 +231,8 @@ uniform int pad;
 void main() {{
   ivec2 b = ivec2(texCoord * vec2(blocks));
   ivec2 o = b * ivec2({kx}, {ky});
-  ivec2 q = o + ivec2(pad);
+  vec2 inv = 1.0 / vec2(textureSize(src, 0));
+  vec2 uv = (vec2(o + ivec2(pad)) + 0.5) * inv;  // the source texel of output o (texture() at texel centres)
   float m = texelFetch(tiles, o / {DOF_TILE}, 0).r;
   // floor(sqrt()) may only overshoot (+1e-3): taps beyond a source's reach fail its own test anyway
   int rr = int(floor(sqrt(max(m, 0.0)) + 1e-3));
@@ -170,7 +241,7 @@ void main() {{
     int dm = dj < 0 ? dj : (dj > {ky - 1} ? dj - {ky - 1} : 0);
     int span = int(floor(sqrt(max(m - float(dm * dm), 0.0)) + 1e-3));
     for (int di = -span; di < span + {kx}; ++di) {{
-      vec4 s = texelFetch(src, q + ivec2(di, dj), 0);
+      vec4 s = texture(src, uv + vec2(float(di), float(dj)) * inv);
       // reach2 - dj^2 is exact in float32 (dj^2 is an integer, a multiple of the ulp of reach2), so
       // di^2 <= t is exactly the integer disc test di^2 + dj^2 <= reach2 of effects._scatter_disc
 {rows}
@@ -200,28 +271,21 @@ void main() {
   gl_FragData[0] = vec4(post(rgb, p, size), 1.0);
 }
 """,
-    # one direction of the separable Gaussian; the weights come from effects.gaussian_weights (the same
-    # float32 numbers as the numba pass); clamp-to-edge wrap = clamped indices. mode 1: the vertical
-    # pass of the unsharp mask, fused with x + amount (x - blur) clipped (x from `orig`).
-    "gauss_1d": _HEADER + f"uniform sampler2D img;\nuniform sampler2D orig;\nuniform int R;\n"
-    f"uniform float wts[{MAX_TAPS}];\nuniform vec2 dir;\nuniform int mode;\nuniform float amount;\n"
-    "//EPILOGUE::Dec\n" + """
-void main() {
-  ivec2 size = textureSize(img, 0);
-  vec2 inv = 1.0 / vec2(size);
+    # the separable Gaussian's blocks back to one image (gauss_passes); mode 1: the unsharp mask
+    # x + amount (x - blur) clipped, x from `orig` (which gives the size in either mode)
+    "gauss_unpack": _HEADER + "uniform sampler3D blocks;\nuniform sampler2D orig;\nuniform int mode;\n"
+    "uniform float amount;\n//EPILOGUE::Dec\n" + f"""
+void main() {{
+  ivec2 size = textureSize(orig, 0);
   ivec2 p = ivec2(texCoord * vec2(size));
-  vec2 uv = (vec2(p) + 0.5) * inv;
-  vec2 step_uv = dir * inv;
-  vec3 acc = vec3(0.0);
-  for (int k = 0; k <= 2 * R; ++k) {
-    acc += wts[k] * texture(img, uv + float(k - R) * step_uv).rgb;
-  }
-  if (mode == 1) {
-    vec3 x = texture(orig, uv).rgb;
+  vec3 at = (vec3(p.x, p.y / {GAUSS_BLOCK}, p.y % {GAUSS_BLOCK}) + 0.5) / vec3(textureSize(blocks, 0));
+  vec3 acc = texture(blocks, at).rgb;
+  if (mode == 1) {{
+    vec3 x = texture(orig, (vec2(p) + 0.5) / vec2(size)).rgb;
     acc = clamp(x + amount * (x - acc), 0.0, 1.0);
-  }
+  }}
   gl_FragData[0] = vec4(post(acc, p, size), 1.0);
-}
+}}
 """,
     # half resolution: the 2x2 mean of the part above threshold in luminance (effects._bright_half)
     "bright_half": _HEADER + "uniform sampler2D img;\nuniform float threshold;\nuniform vec3 luma;\n"
@@ -247,7 +311,7 @@ void main() {
     "//EPILOGUE::Dec\n" + _BILINEAR + """
 void main() {
 """ + _PIXEL + """  float x = (float(p.x) + 0.5) * 0.5, y = (float(p.y) + 0.5) * 0.5;
-  vec3 up = vec3(bilinear(low, 0, x, y), bilinear(low, 1, x, y), bilinear(low, 2, x, y));
+  vec3 up = bilinear3(low, x, y);
   gl_FragData[0] = vec4(post(texelFetch(img, p, 0).rgb + k * up, p, size), 1.0);
 }
 """,
@@ -274,7 +338,8 @@ void main() {{
   ivec2 p = ivec2(texCoord * vec2(out_size));
   ivec2 b = p / ivec2({DOF_BLOCK[0]}, {DOF_BLOCK[1]});
   ivec2 k = p - b * ivec2({DOF_BLOCK[0]}, {DOF_BLOCK[1]});
-  gl_FragData[0] = vec4(post(texelFetch(blocks, ivec3(b, k.y * {DOF_BLOCK[0]} + k.x), 0).rgb, p, size), 1.0);
+  vec3 at = (vec3(b, k.y * {DOF_BLOCK[0]} + k.x) + 0.5) / vec3(textureSize(blocks, 0));
+  gl_FragData[0] = vec4(post(texture(blocks, at).rgb, p, size), 1.0);
 }}
 """,
     # lens flare ghosts and halo at half resolution (lens_flare._features); ghosts (s, r, g, b)
