@@ -170,24 +170,57 @@ def test_shadows_darken_only_when_asked_and_bvh_runs_only_then():
     assert np.allclose(shadowed.hdr[outside], lit.hdr[outside])
 
 
-def test_thin_tissue_transmits_more_through_the_subsurface_term():
+def _grid_quad(z, size, material, n=8):
+    """A square of side 2 size at height z made of n x n cells (so it has interior vertices)."""
+    g = np.linspace(-size, size, n + 1)
+    x, y = np.meshgrid(g, g, indexing="ij")
+    p = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, z)])
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    a = (i * (n + 1) + j).ravel()
+    tris = np.concatenate([np.column_stack([a, a + n + 1, a + n + 2]), np.column_stack([a, a + n + 2, a + 1])])
+    return RenderObject(points=p, triangles=tris, normals=np.tile([0.0, 0.0, 1.0], (len(p), 1)), uv=None,
+                        material=material)
+
+
+@pytest.mark.parametrize("where", ["vertex", "pixel"])
+def test_thin_tissue_transmits_more_through_the_subsurface_term(where):
     cam = _top_camera()
     light = AreaLight(size=(0.02, 0.02), radiance=(2000.0,) * 3, samples=4)
 
     def slab(thickness):
-        top = _quad(0.0, 0.2, "liver")
-        bottom = _quad(-thickness, 0.2, "liver")
+        top = _grid_quad(0.0, 0.2, "liver")
+        bottom = _grid_quad(-thickness, 0.21, "liver")  # a little wider: no ray grazes its edge
         bottom.triangles = bottom.triangles[:, ::-1].copy()
         bottom.normals = -bottom.normals
         return [top, bottom]
 
-    thin = render_frame(slab(0.0005), cam, light, RenderSettings(sss=True))
-    thick = render_frame(slab(0.02), cam, light, RenderSettings(sss=True))
+    settings = RenderSettings(sss=True, sss_thickness=where)
+    thin = render_frame(slab(0.0005), cam, light, settings)
+    thick = render_frame(slab(0.02), cam, light, settings)
     assert np.median(thin.gbuffer["thickness"]) == pytest.approx(0.0005, rel=0.05)
+    assert np.isinf(np.median(thick.gbuffer["thickness"]))  # beyond where exp(-sigma T) < 1e-4 (liver: 9.7 mm)
     red_thin, red_thick = thin.hdr[..., 0].mean(), thick.hdr[..., 0].mean()
     assert red_thin > red_thick  # exp(-sigma T) larger for thin tissue
-    zero = render_frame(slab(0.0), cam, light, RenderSettings(sss=True)).hdr
+    zero = render_frame(slab(0.0), cam, light, settings).hdr
     assert np.isfinite(zero).all() and zero.min() >= 0.0
+
+
+def test_vertex_thickness_follows_a_wedge_like_the_per_pixel_rays():
+    """A wedge (thickness growing linearly across the slab) is linear over each triangle, so the
+    interpolated vertex thickness equals the per-pixel rays' up to rounding."""
+    top = _grid_quad(0.0, 0.2, "liver")
+    bottom = _grid_quad(0.0, 0.21, "liver")
+    bottom.points = bottom.points.copy()
+    bottom.points[:, 2] = -0.001 - 0.01 * (bottom.points[:, 0] + 0.21)  # 1 mm ... 5.2 mm
+    bottom.triangles = bottom.triangles[:, ::-1].copy()
+    bottom.normals = -bottom.normals
+    light = AreaLight(size=(0.02, 0.02), radiance=(2000.0,) * 3, samples=1)
+    at = {w: render_frame([top, bottom], _top_camera(), light, RenderSettings(sss=True, sss_thickness=w))
+          for w in ("vertex", "pixel")}
+    tv, tp = at["vertex"].gbuffer["thickness"], at["pixel"].gbuffer["thickness"]
+    top_pixels = np.isfinite(tp) & (tp < 0.006)
+    assert top_pixels.mean() > 0.5
+    np.testing.assert_allclose(tv[top_pixels], tp[top_pixels], rtol=1e-4)
 
 
 def _ao_scene():

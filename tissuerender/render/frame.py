@@ -23,7 +23,8 @@ import materials
 from tissuerender.render.brdf import layered_reflectance_cos, reflectance_cos
 from tissuerender.render.plastic import roughplastic_cos
 from tissuerender.render.rays import ray_scene
-from tissuerender.render.raster import box_downsample, camera_basis, interpolate_gbuffer, rasterize_objects
+from tissuerender.render.raster import (box_downsample, camera_basis, interpolate_gbuffer,
+                                         interpolate_vertex_scalar, rasterize_objects)
 from tissuerender.stages import StageRecorder, recorder_or_new
 
 ADAPTIVE_DISTANCES = (0.08, 0.16)  # [m] thresholds of m(d)
@@ -80,6 +81,7 @@ class RenderObject:
 class RenderSettings:
     shadows: bool = False
     sss: bool = False
+    sss_thickness: str = "vertex"  # thickness rays from the vertices (interpolated) or from every shading point
     ao: bool = False
     mucus_reflection: bool = False
     light_samples: int = 16
@@ -529,7 +531,13 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
             # prunes most of the traversal through a large organ and changes no visible value
             sigmas = [min(o.sigma) for o in optics if o.k_sss > 0.0 and o.bsdf != "roughplastic"]
             reach = np.log(1e4) / max(min(sigmas), 1e-9) if sigmas else 0.0
-            if reach > 0.0:
+            if reach > 0.0 and settings.sss_thickness == "vertex":
+                # one ray per render-surface vertex along its inward normal, interpolated over each
+                # triangle with the raster's barycentrics (a thickness map on the surface)
+                nv = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
+                at_vertex = bvh.closest_hit(P - inward * nv, -nv, reach) + inward
+                thickness = interpolate_vertex_scalar(at_vertex, T, tri_id, bary, jj, ii)
+            elif reach > 0.0:
                 thickness = bvh.closest_hit(pos - inward * n, -n, reach) + inward
             else:
                 thickness = np.full(pos.shape[0], np.inf)  # no material scatters below its surface

@@ -176,3 +176,23 @@ def box_downsample(hdr: np.ndarray, depth: np.ndarray, ss: int):
     out_depth = np.empty((h, w), depth.dtype)
     _downsample(hdr, depth, ss, out, out_depth)
     return out, out_depth
+
+
+@njit(cache=True, parallel=True)
+def _interpolate_scalar(values, T, tri_id, bary, jj, ii, out):
+    for k in prange(jj.shape[0]):
+        t = tri_id[jj[k], ii[k]]
+        acc = 0.0
+        for c in range(3):
+            b = bary[jj[k], ii[k], c]
+            if b > 0.0:  # a corner with no weight cannot make 0 * inf = nan
+                acc += b * values[T[t, c]]
+        out[k] = acc  # inf at a weighted corner (no hit within reach) stays inf
+
+
+def interpolate_vertex_scalar(values, triangles, tri_id, bary, jj, ii):
+    """A per-vertex scalar at every covered raster sample (perspective-correct barycentrics)."""
+    out = np.empty(jj.shape[0])
+    _interpolate_scalar(np.ascontiguousarray(values, dtype=np.float64), np.ascontiguousarray(triangles, np.int64),
+                        tri_id, bary, jj, ii, out)
+    return out

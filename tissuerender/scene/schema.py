@@ -119,6 +119,26 @@ class XPBDSettings(Strict):
     relaxation: Annotated[float, Field(gt=0.0, le=2.0)] = 1.0
     strain_min: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
     strain_max: Annotated[float, Field(ge=1.0, le=100.0)] | None = None
+    # Green-strain limits in a material frame (Qian 4.21-4.22, sim.xpbd_strain)
+    limit_frame: Literal["rest", "fibre"] = "rest"
+    limit_axes: Annotated[list[Literal[1, 2, 3]], Field(min_length=1, max_length=3)] = [1, 2, 3]
+    green_stretch_min: Annotated[float, Field(gt=-0.5, le=0.0)] | None = None
+    green_stretch_max: Annotated[float, Field(ge=0.0, le=1e3)] | None = None
+    shear_max: Annotated[float, Field(ge=0.0, le=1e3)] | None = None
+    strain_hold: dict[Literal["11", "22", "33", "12", "13", "23"], Annotated[float, Field(gt=-0.5, le=1e3)]] = {}
+    limit_compliance: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
+
+    @model_validator(mode="after")
+    def _limits(self):
+        bounded = set()
+        if self.green_stretch_min is not None or self.green_stretch_max is not None:
+            bounded |= {f"{a}{a}" for a in self.limit_axes}
+        if self.shear_max is not None:
+            bounded |= {"12", "13", "23"}
+        clash = sorted(bounded & set(self.strain_hold))
+        if clash:
+            raise ValueError(f"strain_hold entries {clash} also have a bound (green_stretch_min/max or shear_max)")
+        return self
 
 
 class ReferenceSettings(Strict):
@@ -278,6 +298,7 @@ class EffectsBase(Strict):
 
     shadows: bool = False
     sss: bool = False
+    sss_thickness: Literal["vertex", "pixel"] = "vertex"
     ao: bool = False
     ambient: RGB = [0.0, 0.0, 0.0]
     ao_distance: Annotated[float, Field(gt=0.0, le=100.0)] = 0.02
