@@ -15,6 +15,11 @@ vectorised blocks, ``sim.xpbd_blocked``), project
 ``x_i += w_i grad_i C dlambda`` (Qian 4.42–4.44; its eq. 4.22 gradient typo is noted in DESIGN.md);
 then tool contact, then ``v = (x - x_prev) / dt``. The ``jacobi`` solver averages the corrections of all
 tets per iteration (with relaxation) instead.
+
+Strain limits on Green-strain entries in a material frame (Qian 4.21–4.22, stretch and shear,
+unilateral or held) are projected after every sweep (``sim.xpbd_strain``). Prony viscoelasticity
+(Zhang 5.29–5.32) adds one constraint set per Prony term whose rest shape drifts towards the current
+stretch after every step (generalised Maxwell branches, ``sim.xpbd_prony``).
 """
 from __future__ import annotations
 
@@ -27,6 +32,67 @@ from sim.coloring import colour_tets, split_into_domains
 from sim.integrators import SimulationDiverged
 from sim.model import Model, State
 from sim.probe import resolve_contact
+from sim.xpbd_prony import MaxwellBranches
+from sim.xpbd_strain import GreenStrainLimits, limit_boxes
+
+
+class TetConstraints:
+    """One set of per-tet elastic constraints in colour order: the body's tets, or one Prony branch
+    (rest matrix ``Dm^-1 Fv^-1``, energy weighted by ``weight``). Holds its compliances, multipliers
+    and, for the blocked kernel, its block layout."""
+
+    def __init__(self, xpbd: "XPBD", Dm_inv: np.ndarray, weight: float):
+        self.xpbd = xpbd
+        self.weight = weight
+        m = xpbd.model
+        order = xpbd.tet_order
+        mu, lam, volume = m.mu[order], m.lam[order], m.volume[order]
+        self.alpha_dev = 1.0 / (weight * mu * volume)
+        # lam = 0 (nu = 0): no volume term; an effectively infinite compliance switches it off.
+        has_lam = lam > 0.0
+        self.alpha_hyd = np.where(has_lam, 1.0 / (weight * np.where(has_lam, lam, 1.0) * volume), 1e30)
+        self.gamma = np.where(has_lam, 1.0 + mu / np.where(has_lam, lam, 1.0), 1.0)
+        self.lam_dev = np.zeros(m.n_tets)  # multipliers (lam_dev alone for the model's energy)
+        self.lam_hyd = np.zeros(m.n_tets)
+        self.energy = None
+        self.blocks = None
+        self.set_rest(Dm_inv)
+
+    def set_rest(self, Dm_inv: np.ndarray) -> None:
+        """New rest matrices (a Prony branch after its drift)."""
+        x = self.xpbd
+        self.Dm_inv = np.ascontiguousarray(Dm_inv)
+        if x.material == "model":
+            from sim.xpbd_energy import EnergyConstraints
+
+            self.energy = EnergyConstraints(x.model, x.tet_order, x.colour_start, self.Dm_inv, self.weight)
+        elif x.solver == "gauss_seidel" and x.kernel == "blocked":
+            self.blocks = blocked.pack_blocks(x.tets, self.Dm_inv, x.w, self.alpha_dev, self.alpha_hyd, self.gamma,
+                                              x.colour_start)
+
+    def reset(self) -> None:
+        self.lam_dev[:] = 0.0
+        self.lam_hyd[:] = 0.0
+        if self.blocks is not None:
+            blocked.reset_multipliers(self.blocks[1])
+
+    def sweeps(self, x: np.ndarray, inv_dt2: float, iterations: int) -> None:
+        xp = self.xpbd
+        if self.energy is not None:  # the model's own energy, C = sqrt(2 V Psi)
+            for _ in range(iterations):
+                self.energy.sweep(x, self.lam_dev, xp.w, inv_dt2)
+            return
+        if self.blocks is not None:
+            node_index, params, lanes_used, colour_block = self.blocks
+            blocked.gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, xp.domain_colour,
+                                         inv_dt2, xp.mode, iterations, numba.get_num_threads())
+            return
+        args = (x, xp.tets, self.Dm_inv, xp.w, self.alpha_dev, self.alpha_hyd, self.gamma, self.lam_dev,
+                self.lam_hyd, inv_dt2, xp.mode)
+        if xp.solver == "gauss_seidel":
+            kernels.gauss_seidel(*args, xp.colour_start, iterations)
+        else:
+            kernels.jacobi(*args, xp.tet_scale, iterations)
 
 
 class XPBD:
@@ -34,13 +100,17 @@ class XPBD:
     ``coupling`` ("coupled": both constraints of a tet in one 2x2 solve | "sequential": in turn),
     ``relaxation`` (Jacobi), ``damping`` [1/s] (velocity decay ``exp(-damping dt)``), ``strain_min`` /
     ``strain_max``: hard unilateral limits on the stretch |F a| along the rest frame's axes and the
-    fibre (Qian 4.3.4, eq. 4.21 on stretches), projected after every sweep; ``material``:
-    "stable_neo_hookean" (default, the numba kernels with the model's mu and lambda) or "model" (the
-    model's own energy as C = sqrt(2 V Psi), ``sim.xpbd_energy``); ``kernel`` (Gauss–Seidel):
-    "blocked" (default, tets of a colour projected 16 at a time by a vectorised loop) or "scalar"
-    (the per-tet reference ``project_tet``; same positions up to rounding); ``domains`` (default: the
-    numba thread count at start-up): slabs whose interiors are swept concurrently, one per thread,
-    before the separator layer between them (the result does not depend on the threads used)."""
+    fibre (Qian 4.3.4, eq. 4.21 on stretches), projected after every sweep; Green-strain limits in a
+    material frame (``limit_frame``, ``limit_axes``, ``green_stretch_min`` / ``green_stretch_max``,
+    ``shear_max``, ``strain_hold``, ``limit_compliance``; ``sim.xpbd_strain``), projected after every
+    sweep too; ``material``: "stable_neo_hookean" (default, the numba kernels with the model's mu and
+    lambda) or "model" (the model's own energy as C = sqrt(2 V Psi), ``sim.xpbd_energy``); ``kernel``
+    (Gauss–Seidel): "blocked" (default, tets of a colour projected 16 at a time by a vectorised loop)
+    or "scalar" (the per-tet reference ``project_tet``; same positions up to rounding); ``domains``
+    (default: the numba thread count at start-up): slabs whose interiors are swept concurrently, one per
+    thread, before the separator layer between them (the result does not depend on the threads used).
+    A model with Prony terms (``material_params["prony"]``) gets one more constraint set per term
+    (``sim.xpbd_prony``)."""
 
     name = "xpbd"
 
@@ -60,6 +130,12 @@ class XPBD:
         if coupling not in ("coupled", "sequential"):
             raise ValueError(f"xpbd coupling must be 'coupled' or 'sequential', found {coupling!r}")
         self.mode = 1 if coupling == "coupled" else 0
+        self.material = settings.get("material", "stable_neo_hookean")
+        if self.material not in ("stable_neo_hookean", "model"):
+            raise ValueError(f"xpbd material must be 'stable_neo_hookean' or 'model', found {self.material!r}")
+        self.kernel = settings.get("kernel", "blocked")
+        if self.kernel not in ("blocked", "scalar"):
+            raise ValueError(f"xpbd kernel must be 'blocked' or 'scalar', found {self.kernel!r}")
         m = model
         # Per-tet data is stored in colour order, so each colour is a contiguous range read sequentially:
         # the colours of each domain's interior, then the separator's (see split_into_domains).
@@ -77,29 +153,16 @@ class XPBD:
         self.tet_order = order
         self.colour_start = np.concatenate([[0], np.cumsum([c.size for c in colours])]).astype(np.int64)
         self.tets = np.ascontiguousarray(m.tets[order], dtype=np.int64)
-        self.Dm_inv = np.ascontiguousarray(m.Dm_inv[order])
-        mu, lam, volume = m.mu[order], m.lam[order], m.volume[order]
-        self.alpha_dev = 1.0 / (mu * volume)
-        # lam = 0 (nu = 0): no volume term; an effectively infinite compliance switches it off.
-        has_lam = lam > 0.0
-        self.alpha_hyd = np.where(has_lam, 1.0 / np.where(has_lam, lam, 1.0) / volume, 1e30)
-        self.gamma = np.where(has_lam, 1.0 + mu / np.where(has_lam, lam, 1.0), 1.0)
         self.w = m.inverse_mass()
-        self.energy = None
-        material = settings.get("material", "stable_neo_hookean")
-        if material not in ("stable_neo_hookean", "model"):
-            raise ValueError(f"xpbd material must be 'stable_neo_hookean' or 'model', found {material!r}")
-        if material == "model":
-            from sim.xpbd_energy import EnergyConstraints
-
-            self.energy = EnergyConstraints(m, order, self.colour_start)
-        self.kernel = settings.get("kernel", "blocked")
-        if self.kernel not in ("blocked", "scalar"):
-            raise ValueError(f"xpbd kernel must be 'blocked' or 'scalar', found {self.kernel!r}")
-        self.blocks = None
-        if self.solver == "gauss_seidel" and self.kernel == "blocked" and self.energy is None:
-            self.blocks = blocked.pack_blocks(self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd,
-                                              self.gamma, self.colour_start)
+        # constraint sets: the body's tets (long-term weight 1 - sum a_i with Prony terms), then one
+        # set per Prony branch (sim.xpbd_prony)
+        prony = m.material_params.get("prony")
+        self.branches = MaxwellBranches(prony, self.tets, np.ascontiguousarray(m.Dm_inv[order])) if prony else None
+        self.sets = [TetConstraints(self, weight_B[1], weight_B[0]) for weight_B in (
+            self.branches.sets() if self.branches is not None else [(1.0, m.Dm_inv[order])])]
+        base = self.sets[0]
+        self.Dm_inv, self.alpha_dev, self.alpha_hyd, self.gamma = base.Dm_inv, base.alpha_dev, base.alpha_hyd, base.gamma
+        self.blocks, self.energy = base.blocks, base.energy
         if self.strain_limits is not None:
             # limited axes: the rest frame's x, y, z and, for fibred materials, the fibre (Qian 4.3.4)
             axes = [np.broadcast_to(np.eye(3)[k], (m.n_tets, 3)) for k in range(3)]
@@ -107,6 +170,8 @@ class XPBD:
                 axes.append(m.fibre)
             self.limit_axes = np.ascontiguousarray(
                 np.stack([np.einsum("mij,mj->mi", m.Dm_inv, a) for a in axes], axis=1)[order])
+        self.green_limits = (GreenStrainLimits(m, order, self.colour_start, settings)
+                             if limit_boxes(settings) is not None else None)
         self.kin_idx, _ = m.kinematic_targets(0.0)
         self.kin_base = m.X[self.kin_idx]
         row_of = {int(node): row for row, node in enumerate(self.kin_idx)}
@@ -125,46 +190,34 @@ class XPBD:
             target[rows] = self.kin_base[rows] + p.fraction(t) * np.asarray(p.displacement)
         return target
 
-    def _sweeps(self, x, lam_dev, lam_hyd, inv_dt2, iterations):
-        if self.energy is not None:  # the model's own energy, C = sqrt(2 V Psi) (lam_dev holds lambda)
-            for _ in range(iterations):
-                self.energy.sweep(x, lam_dev, self.w, inv_dt2)
-            return
-        args = (x, self.tets, self.Dm_inv, self.w, self.alpha_dev, self.alpha_hyd, self.gamma, lam_dev, lam_hyd,
-                inv_dt2, self.mode)
-        if self.blocks is not None:
-            node_index, params, lanes_used, colour_block = self.blocks
-            blocked.gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, self.domain_colour,
-                                         inv_dt2, self.mode, iterations, numba.get_num_threads())
-        elif self.solver == "gauss_seidel":
-            kernels.gauss_seidel(*args, self.colour_start, iterations)
-        else:
-            kernels.jacobi(*args, self.tet_scale, iterations)
-
     def step(self, state: State, dt: float) -> State:
         m = self.model
         h = dt / self.substeps
+        inv_dt2 = 1.0 / (h * h)
         x = state.x.copy()
         v = state.v.copy()
         t = state.t
-        lam_dev = np.zeros(m.n_tets)
-        lam_hyd = np.zeros(m.n_tets)
+        # with probes, limits or several constraint sets, those are visited after every sweep; else
+        # one kernel call does all the iterations
+        per_sweep = bool(m.probes) or self.strain_limits is not None or self.green_limits is not None
+        per_call = 1 if per_sweep or len(self.sets) > 1 else self.iterations
         for _ in range(self.substeps):
             t_next = t + h
             x_prev = x.copy()
             x += h * v + h * h * self.f_ext_acc
             x[self.kin_idx] = self._kinematic_targets(t_next)
-            lam_dev[:] = 0.0
-            lam_hyd[:] = 0.0
-            if self.blocks is not None:
-                blocked.reset_multipliers(self.blocks[1])
-            # with probes or strain limits, those are resolved after every sweep; else one call does all
-            per_call = 1 if (m.probes or self.strain_limits is not None) else self.iterations
+            for constraints in self.sets:
+                constraints.reset()
+            if self.green_limits is not None:
+                self.green_limits.reset()
             for _ in range(self.iterations // per_call):
-                self._sweeps(x, lam_dev, lam_hyd, 1.0 / (h * h), per_call)
+                for constraints in self.sets:
+                    constraints.sweeps(x, inv_dt2, per_call)
                 if self.strain_limits is not None:
                     kernels.strain_limit(x, self.tets, self.limit_axes, self.w, *self.strain_limits,
                                          self.colour_start)
+                if self.green_limits is not None:
+                    self.green_limits.project(x, self.w, inv_dt2)
                 for probe in m.probes:
                     resolve_contact(x, probe, t_next, self.w)
             v = (x - x_prev) / h
@@ -173,4 +226,8 @@ class XPBD:
             t = t_next
         if not np.isfinite(x).all():
             raise SimulationDiverged(f"xpbd: non-finite positions at t = {t:.6g} s")
+        if self.branches is not None:
+            self.branches.relax(x, dt)
+            for constraints, (_, rest) in zip(self.sets[1:], self.branches.sets()[1:]):
+                constraints.set_rest(rest)
         return State(x=x, v=v, t=t, private=state.private)

@@ -6,6 +6,9 @@
 material: Zhang's Neo-Hookean 5.35, the anisotropic fibre term, St Venant-Kirchhoff, Valanis-Landel
 curves. Tets whose energy is undefined (J <= 0 for the log/J^(-2/3) forms) are left alone in that
 sweep; ``C`` is not differentiable at rest, so tets with ``C < 1e-12`` are skipped too.
+
+A Prony branch (``sim.xpbd_prony``) is the same constraint with its own rest matrix ``Dm^-1 Fv^-1``
+(``Dm_inv=``) and its energy weighted by ``a_i`` (``weight=``: ``C = sqrt(2 weight V Psi)``).
 """
 from __future__ import annotations
 
@@ -15,13 +18,14 @@ from sim import constitutive
 
 
 class EnergyConstraints:
-    def __init__(self, model, order: np.ndarray, colour_start: np.ndarray):
+    def __init__(self, model, order: np.ndarray, colour_start: np.ndarray, Dm_inv: np.ndarray | None = None,
+                 weight: float = 1.0):
         name, mu, lam, eta, a0 = constitutive.model_params(model)
         self.name = name
         self.vl = constitutive.model_curves(model)
         self.tets = model.tets[order]
-        self.Dm_inv = model.Dm_inv[order]
-        self.volume = model.volume[order]
+        self.Dm_inv = model.Dm_inv[order] if Dm_inv is None else Dm_inv
+        self.volume = weight * model.volume[order]
         self.mu, self.lam = mu[order], lam[order]
         self.eta = None if eta is None else np.asarray(eta)[order]
         self.a0 = None if a0 is None else np.asarray(a0)[order]

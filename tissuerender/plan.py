@@ -12,8 +12,9 @@ from dataclasses import dataclass
 
 from tissuerender.scene import Scene
 
-# integrators that evaluate the material's Prony series / fibre term (XPBD uses stable Neo-Hookean only)
-PRONY_INTEGRATORS = frozenset({"ebm", "reference"})
+# integrators that evaluate the material's Prony series (XPBD: Maxwell branches, sim.xpbd_prony) / fibre
+# term (XPBD only with material = "model")
+PRONY_INTEGRATORS = frozenset({"ebm", "reference", "xpbd"})
 FIBRE_INTEGRATORS = frozenset({"ebm", "reference", "explicit", "cnn"})
 
 
