@@ -150,10 +150,11 @@ def main() -> None:
             ratio = float(np.median([o.total_seconds / n.total_seconds for n, o in zip(runs["numpy"], runs["osmesa"])]))
             result[f"osmesa_over_numpy{suffix}"] = round(ratio, 3)
             print(f"{label:9s} osmesa / numpy (median of {repeats} back-to-back runs): {ratio:.3f}")
-            last = runs["osmesa"][-1]
-            groups = {"+".join([k, *last.fused.get(k, [])]): float(np.median([run.seconds[k] for run in runs["osmesa"]])) * 1e3
+        for backend in backends:
+            last = runs[backend][-1]
+            groups = {"+".join([k, *last.fused.get(k, [])]): float(np.median([run.seconds[k] for run in runs[backend]])) * 1e3
                       for k in last.seconds}
-            print(f"{label:9s} osmesa passes in the chain [ms]: " + ", ".join(f"{k} {v:.1f}" for k, v in groups.items()))
+            print(f"{label:9s} {backend} in the chain [ms]: " + ", ".join(f"{k} {v:.1f}" for k, v in groups.items()))
     hdr, depth, lens, chain = frames[""]
     ms = time_effects(hdr, depth, lens, chain, backends, repeats)
     for backend in backends:

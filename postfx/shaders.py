@@ -343,38 +343,53 @@ void main() {{
 }}
 """,
     # lens flare ghosts and halo at half resolution (lens_flare._features); ghosts (s, r, g, b)
-    "flare_features": _HEADER + "uniform sampler2D half_res;\nuniform sampler2D quarter;\nuniform vec2 centre;\n"
-    "uniform float rho;\nuniform float halo;\nuniform vec3 halo_tint;\nuniform int falloff;\n"
-    "uniform int n_ghosts;\nuniform vec4 ghosts[16];\n" + _BILINEAR_ZERO + """
-float fade(vec2 q) {
-  float base = max(1.0 - length(q - centre) / rho, 0.0), f = 1.0;
-  for (int k = 0; k < falloff; ++k) f *= base;
-  return f;
 }
-void main() {
+
+
+@functools.lru_cache(maxsize=None)
+def flare_features(n_ghosts: int, falloff: int, reads_half: tuple[bool, ...]) -> str:
+    """Lens flare ghosts and halo at half resolution (lens_flare._features), unrolled for the number of
+    ghosts, the integer fade exponent and the image each ghost reads (half resolution when |s| >= 1, else
+    quarter): constants let the shader compiler drop the loops and uniform-array indexing. Ghost k is
+    ``ghosts[k] = (s, r, g, b)``. Registered in SHADERS under the returned name."""
+    name = f"flare_features_{n_ghosts}_{falloff}_{''.join('h' if h else 'q' for h in reads_half)}"
+    fade = "".join("  f *= base;\n" for _ in range(falloff))
+    ghosts = "".join(f"""  {{
+    float s = ghosts[{k}].x;
+    vec2 q = centre + (pos - centre) / s;
+    float wk = fade(q) / (s * s);
+    if (wk > 0.0) acc += ghosts[{k}].yzw * wk * {"bilinear_zero(half_res, q.x / 2.0, q.y / 2.0)" if half
+                                                   else "bilinear_zero(quarter, q.x / 4.0, q.y / 4.0)"};
+  }}
+""" for k, half in enumerate(reads_half))
+    SHADERS[name] = _HEADER + f"""uniform sampler2D half_res;
+uniform sampler2D quarter;
+uniform vec2 centre;
+uniform float rho;
+uniform float halo;
+uniform vec3 halo_tint;
+uniform vec4 ghosts[{max(n_ghosts, 1)}];
+{_BILINEAR_ZERO}
+float fade(vec2 q) {{
+  float base = max(1.0 - length(q - centre) / rho, 0.0), f = 1.0;
+{fade}  return f;
+}}
+void main() {{
   vec2 size = vec2(textureSize(half_res, 0));
   ivec2 p = ivec2(texCoord * size);
   vec2 pos = 2.0 * (vec2(p) + 0.5);
   vec3 acc = vec3(0.0);
-  for (int k = 0; k < n_ghosts; ++k) {
-    float s = ghosts[k].x;
-    vec2 q = centre + (pos - centre) / s;
-    float wk = fade(q) / (s * s);
-    if (wk <= 0.0) continue;
-    vec3 v = abs(s) >= 1.0 ? bilinear_zero(half_res, q.x / 2.0, q.y / 2.0) : bilinear_zero(quarter, q.x / 4.0, q.y / 4.0);
-    acc += ghosts[k].yzw * wk * v;
-  }
-  vec2 d = centre - pos;
+{ghosts}  vec2 d = centre - pos;
   float dist = length(d);
-  if (halo > 0.0 && dist > 0.0) {
+  if (halo > 0.0 && dist > 0.0) {{
     vec2 q = pos + d * (halo / dist);
     float wh = fade(q);
     if (wh > 0.0) acc += halo_tint * wh * bilinear_zero(half_res, q.x / 2.0, q.y / 2.0);
-  }
+  }}
   gl_FragData[0] = vec4(acc, 1.0);
-}
-""",
-}
+}}
+"""
+    return name
 
 
 @functools.lru_cache(maxsize=None)
