@@ -65,7 +65,8 @@ class TetConstraints:
         if x.material == "model":
             from sim.xpbd_energy import EnergyConstraints
 
-            self.energy = EnergyConstraints(x.model, x.tet_order, x.colour_start, self.Dm_inv, self.weight)
+            self.energy = EnergyConstraints(x.model, x.tet_order, x.colour_start, self.Dm_inv, self.weight,
+                                            x.energy_kernel)
         elif x.solver == "gauss_seidel" and x.kernel == "blocked":
             self.blocks = blocked.pack_blocks(x.tets, self.Dm_inv, x.w, self.alpha_dev, self.alpha_hyd, self.gamma,
                                               x.colour_start)
@@ -79,8 +80,7 @@ class TetConstraints:
     def sweeps(self, x: np.ndarray, inv_dt2: float, iterations: int) -> None:
         xp = self.xpbd
         if self.energy is not None:  # the model's own energy, C = sqrt(2 V Psi)
-            for _ in range(iterations):
-                self.energy.sweep(x, self.lam_dev, xp.w, inv_dt2)
+            self.energy.sweeps(x, self.lam_dev, xp.w, inv_dt2, iterations)
             return
         if self.blocks is not None:
             node_index, params, lanes_used, colour_block = self.blocks
@@ -104,7 +104,8 @@ class XPBD:
     material frame (``limit_frame``, ``limit_axes``, ``green_stretch_min`` / ``green_stretch_max``,
     ``shear_max``, ``strain_hold``, ``limit_compliance``; ``sim.xpbd_strain``), projected after every
     sweep too; ``material``: "stable_neo_hookean" (default, the numba kernels with the model's mu and
-    lambda) or "model" (the model's own energy as C = sqrt(2 V Psi), ``sim.xpbd_energy``); ``kernel``
+    lambda) or "model" (the model's own energy as C = sqrt(2 V Psi), ``sim.xpbd_energy``; ``energy_kernel``
+    "numba", the default where the material has one, or "numpy"); ``kernel``
     (Gauss–Seidel): "blocked" (default, tets of a colour projected 16 at a time by a vectorised loop)
     or "scalar" (the per-tet reference ``project_tet``; same positions up to rounding); ``domains``
     (default: the numba thread count at start-up): slabs whose interiors are swept concurrently, one per
@@ -136,6 +137,8 @@ class XPBD:
         self.kernel = settings.get("kernel", "blocked")
         if self.kernel not in ("blocked", "scalar"):
             raise ValueError(f"xpbd kernel must be 'blocked' or 'scalar', found {self.kernel!r}")
+        # material = "model": "numba" (default where the material has one) or "numpy" (sim.xpbd_energy)
+        self.energy_kernel = settings.get("energy_kernel")
         m = model
         # Per-tet data is stored in colour order, so each colour is a contiguous range read sequentially:
         # the colours of each domain's interior, then the separator's (see split_into_domains).
