@@ -63,9 +63,9 @@ class ChainResult:
     seconds: dict = field(default_factory=dict)  # per effect (see fused)
     backend_used: str = "numpy"
     total_seconds: float = 0.0  # the whole chain, with the osmesa upload and read-back
-    # osmesa draws a run of pointwise effects (noise, tone map, grade, mask) in the last pass of the
-    # effect before them: fused[name] lists them, seconds[name] includes their time and they have no
-    # entry of their own in seconds
+    # pointwise effects (noise, tone map, grade, mask) run fused: osmesa draws a run of them in the last
+    # pass of the effect before them, numpy applies consecutive ones in one pass. fused[name] lists
+    # the effects run with ``name``: seconds[name] includes their time, they have no entry of their own
     fused: dict = field(default_factory=dict)
 
 
@@ -111,13 +111,32 @@ def apply_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens: Lens, backend: 
             if rest:
                 fused[first] = rest
         return ChainResult(np.clip(img, 0.0, 1.0), seconds, used, total, fused)
-    seconds = {}
+    seconds, fused = {}, {}
     begin = time.perf_counter()
-    for name, params in chain:
+    for run in _pointwise_runs(chain):
+        (name, params), rest = run[0], run[1:]
         start = time.perf_counter()
-        img = apply_effect(name, img, depth, params, lens, seed).astype(np.float32, copy=False)
+        if rest:  # consecutive pointwise effects: one pass, the same result (effects.pointwise_chain)
+            img = effects.pointwise_chain(img, run, seed)
+            fused[name] = [n for n, _ in rest]
+        else:
+            img = apply_effect(name, img, depth, params, lens, seed).astype(np.float32, copy=False)
         seconds[name] = time.perf_counter() - start
-    return ChainResult(np.clip(img, 0.0, 1.0), seconds, used, time.perf_counter() - begin)
+    return ChainResult(np.clip(img, 0.0, 1.0), seconds, used, time.perf_counter() - begin, fused)
+
+
+def _pointwise_runs(chain):
+    """The chain cut into runs: consecutive pointwise effects (at most one of each) together, every
+    other effect alone."""
+    runs: list = []
+    for name, params in chain:
+        last = runs[-1] if runs else None
+        if (last is not None and name in effects.POINTWISE and last[0][0] in effects.POINTWISE
+                and name not in {n for n, _ in last}):
+            last.append((name, params))
+        else:
+            runs.append([(name, params)])
+    return runs
 
 
 def osmesa_available() -> bool:

@@ -4,8 +4,10 @@ Pixel centres are at integer + 0.5; images are row-major with row 0 at the top.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -181,25 +183,31 @@ def _srgb1(x):
                                                                       - np.float32(0.055))
 
 
+@njit(cache=True, inline="always")
+def _tonemap1(x, gain, curve, srgb):
+    """One float32 value: exposure ``gain``, then the curve (0 ACES fit, 1 Reinhard, 2 clamp), then sRGB."""
+    zero, one = np.float32(0.0), np.float32(1.0)
+    x = max(x, zero) * gain
+    if curve == 0:  # ACES fit (Narkowicz 2015)
+        y = min(max((x * (np.float32(2.51) * x + np.float32(0.03)))
+                    / (x * (np.float32(2.43) * x + np.float32(0.59)) + np.float32(0.14)), zero), one)
+    elif curve == 1:
+        y = x / (one + x)
+    else:
+        y = min(x, one)
+    return _srgb1(y) if srgb else y
+
+
 @njit(cache=True, parallel=True)
 def _tonemap_kernel(img, gain, curve, srgb):
     """float32 throughout, as the shader (float64 pow cost 40 % more and changed nothing visible)."""
     h, w, nc = img.shape
     out = np.empty_like(img)
     gain = np.float32(gain)
-    zero, one = np.float32(0.0), np.float32(1.0)
     for j in prange(h):
         for i in range(w):
             for c in range(nc):
-                x = max(img[j, i, c], zero) * gain
-                if curve == 0:  # ACES fit (Narkowicz 2015)
-                    y = min(max((x * (np.float32(2.51) * x + np.float32(0.03)))
-                                / (x * (np.float32(2.43) * x + np.float32(0.59)) + np.float32(0.14)), zero), one)
-                elif curve == 1:
-                    y = x / (one + x)
-                else:
-                    y = min(x, one)
-                out[j, i, c] = _srgb1(y) if srgb else y
+                out[j, i, c] = _tonemap1(img[j, i, c], gain, curve, srgb)
     return out
 
 
@@ -249,24 +257,32 @@ def grade_lut(p: ColorGrade) -> np.ndarray:
     return _grade_lut(p.model_dump_json())  # lists make the model unhashable: cache on its JSON
 
 
+@njit(cache=True, inline="always")
+def _grade1(r0, g0, b0, lut, saturation, l0, l1, l2):
+    """One pixel: the per-channel LUT (linear interpolation), then saturation about luma, in float64."""
+    n = lut.shape[0]
+    f0 = min(max(np.float64(r0), 0.0), 1.0) * (n - 1)
+    f1 = min(max(np.float64(g0), 0.0), 1.0) * (n - 1)
+    f2 = min(max(np.float64(b0), 0.0), 1.0) * (n - 1)
+    k0, k1, k2 = min(int(f0), n - 2), min(int(f1), n - 2), min(int(f2), n - 2)
+    r = lut[k0, 0] + (f0 - k0) * (lut[k0 + 1, 0] - lut[k0, 0])
+    g = lut[k1, 1] + (f1 - k1) * (lut[k1 + 1, 1] - lut[k1, 1])
+    b = lut[k2, 2] + (f2 - k2) * (lut[k2 + 1, 2] - lut[k2, 2])
+    luma = l0 * r + l1 * g + l2 * b
+    return (min(max(luma + saturation * (r - luma), 0.0), 1.0), min(max(luma + saturation * (g - luma), 0.0), 1.0),
+            min(max(luma + saturation * (b - luma), 0.0), 1.0))
+
+
 @njit(cache=True, parallel=True)
 def _grade_kernel(img, lut, saturation, l0, l1, l2):
     h, w, _ = img.shape
-    n = lut.shape[0]
     out = np.empty_like(img)
     for j in prange(h):
         for i in range(w):
-            f0 = min(max(np.float64(img[j, i, 0]), 0.0), 1.0) * (n - 1)
-            f1 = min(max(np.float64(img[j, i, 1]), 0.0), 1.0) * (n - 1)
-            f2 = min(max(np.float64(img[j, i, 2]), 0.0), 1.0) * (n - 1)
-            k0, k1, k2 = min(int(f0), n - 2), min(int(f1), n - 2), min(int(f2), n - 2)
-            r = lut[k0, 0] + (f0 - k0) * (lut[k0 + 1, 0] - lut[k0, 0])
-            g = lut[k1, 1] + (f1 - k1) * (lut[k1 + 1, 1] - lut[k1, 1])
-            b = lut[k2, 2] + (f2 - k2) * (lut[k2 + 1, 2] - lut[k2, 2])
-            luma = l0 * r + l1 * g + l2 * b
-            out[j, i, 0] = min(max(luma + saturation * (r - luma), 0.0), 1.0)
-            out[j, i, 1] = min(max(luma + saturation * (g - luma), 0.0), 1.0)
-            out[j, i, 2] = min(max(luma + saturation * (b - luma), 0.0), 1.0)
+            r, g, b = _grade1(img[j, i, 0], img[j, i, 1], img[j, i, 2], lut, saturation, l0, l1, l2)
+            out[j, i, 0] = r
+            out[j, i, 1] = g
+            out[j, i, 2] = b
     return out
 
 
@@ -337,11 +353,34 @@ def _convolve_columns(img, w, orig, amount, unsharp):
     return out
 
 
+# Below this many values (a 640x480 RGB frame at half resolution has 230 400) a kernel runs on one
+# thread. Each parallel region waits for its slowest thread: on a loaded 2-core machine the second
+# thread often waits for the scheduler, and every region then cost 12 ms (measured at load 3.4: the
+# half-resolution Gaussian 24 ms on two threads, 1 ms on one; bloom 36 vs 12 ms, lens flare 63 vs 22)
+# for work of about a millisecond; with two idle cores one thread costs a fraction of a millisecond more.
+SERIAL_BELOW = 1 << 18
+
+
+@contextlib.contextmanager
+def threads_for(values: int):
+    """Run the numba kernels inside on one thread when they touch fewer than SERIAL_BELOW values."""
+    threads = numba.get_num_threads()
+    if values >= SERIAL_BELOW or threads == 1:
+        yield
+        return
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(threads)
+
+
 def gaussian_blur(img: np.ndarray, sigma: float) -> np.ndarray:
     """Separable Gaussian blur with clamped edges (the GLSL passes do the same taps)."""
     w = gaussian_weights(sigma)
     img = np.ascontiguousarray(img, dtype=np.float32)
-    return _convolve_columns(_convolve_rows(img, w), w, img, np.float32(0.0), False)
+    with threads_for(img.size):
+        return _convolve_columns(_convolve_rows(img, w), w, img, np.float32(0.0), False)
 
 
 def blur(img: np.ndarray, p: Blur) -> np.ndarray:
@@ -509,3 +548,101 @@ def sensor_noise(img: np.ndarray, p: SensorNoise, seed: int) -> np.ndarray:
     z = noise_field(img.shape, seed)
     sd = np.sqrt(np.maximum(img, 0.0) * np.float32(p.shot) + np.float32(p.read) ** 2)
     return np.maximum(img + sd * z, 0.0)
+
+
+# -- runs of pointwise effects in one pass (apply_chain) -------------------------------------------------
+POINTWISE = ("sensor_noise", "tonemap", "color_grade", "laparoscope_mask")
+_OP = {name: k for k, name in enumerate(POINTWISE)}
+
+
+@njit(cache=True, parallel=True)
+def _pointwise_kernel(img, ops, fpar, ipar, lut, weights):
+    """A run of pointwise effects, row by row in one parallel loop: op 0 sensor noise (fpar shot, read;
+    ipar key), 1 tone map (fpar gain; ipar curve, srgb), 2 colour grade (fpar saturation, luma; ``lut``),
+    3 mask (``weights``). Each op does the float32 arithmetic of its own kernel above and the value
+    is rounded to float32 between ops, as when they run one after the other, so the result is the
+    same to the bit (tested); one pass over the image instead of one per effect."""
+    h, w, nc = img.shape
+    out = np.empty_like(img)
+    n_row = w * nc
+    two_pi = np.float32(2.0 * np.pi)
+    zero = np.float32(0.0)
+    for j in prange(h):
+        x = np.empty(n_row, np.float32)
+        for i in range(w):
+            for c in range(nc):
+                x[i * nc + c] = img[j, i, c]
+        for k in range(ops.shape[0]):
+            op = ops[k]
+            if op == 0:  # the values (j w + i) nc + c of the counter-based field, pairs (2m, 2m + 1)
+                n0 = j * n_row
+                m0 = n0 // 2
+                m1 = (n0 + n_row - 1) // 2 + 1
+                u1 = np.empty(m1 - m0, np.float32)
+                u2 = np.empty(m1 - m0, np.float32)
+                key = ipar[k, 0]
+                for m in range(m0, m1):
+                    n = np.int64(m) * 2
+                    u1[m - m0] = (np.float32(hash32(hash32(n) ^ key) >> 8) + np.float32(0.5)) * np.float32(_U24)
+                    u2[m - m0] = (np.float32(hash32(hash32(n + 1) ^ key) >> 8) + np.float32(0.5)) * np.float32(_U24)
+                shot = np.float32(fpar[k, 0])
+                read = np.float32(fpar[k, 1])
+                read2 = read * read
+                for m in range(m0, m1):
+                    r = np.sqrt(np.float32(-2.0) * np.log(u1[m - m0]))
+                    angle = two_pi * u2[m - m0]
+                    for t in range(2):
+                        f = 2 * m + t - n0
+                        if f < 0 or f >= n_row:
+                            continue
+                        z = r * np.cos(angle) if t == 0 else r * np.sin(angle)
+                        sd = np.sqrt(max(x[f], zero) * shot + read2)
+                        x[f] = max(x[f] + sd * z, zero)
+            elif op == 1:
+                gain = np.float32(fpar[k, 0])
+                for f in range(n_row):
+                    x[f] = _tonemap1(x[f], gain, ipar[k, 0], ipar[k, 1])
+            elif op == 2:
+                for i in range(w):
+                    r, g, b = _grade1(x[i * nc], x[i * nc + 1], x[i * nc + 2], lut, fpar[k, 0], fpar[k, 1],
+                                      fpar[k, 2], fpar[k, 3])
+                    x[i * nc] = r
+                    x[i * nc + 1] = g
+                    x[i * nc + 2] = b
+            else:
+                for i in range(w):
+                    for c in range(nc):
+                        x[i * nc + c] = x[i * nc + c] * weights[j, i]
+        for i in range(w):
+            for c in range(nc):
+                out[j, i, c] = x[i * nc + c]
+    return out
+
+
+def pointwise_chain(img: np.ndarray, run, seed: int = 0) -> np.ndarray:
+    """Apply ``run`` (a list of ``(name, params)`` of pointwise effects, at most one colour grade) in one
+    pass; equal to applying them one after the other."""
+    img = np.ascontiguousarray(img, dtype=np.float32)
+    h, w = img.shape[:2]
+    ops = np.array([_OP[name] for name, _ in run], np.int64)
+    fpar = np.zeros((len(run), 4), np.float64)
+    ipar = np.zeros((len(run), 2), np.int64)
+    lut = np.zeros((2, 3), np.float32)
+    weights = np.zeros((1, 1), np.float32)
+    for k, (name, p) in enumerate(run):
+        if name == "sensor_noise":
+            fpar[k, :2] = p.shot, p.read
+            ipar[k, 0] = noise_key(seed)
+        elif name == "tonemap":
+            fpar[k, 0] = float(np.float32(2.0**p.exposure))
+            ipar[k] = TONE_CURVES[p.curve], int(bool(p.srgb))
+        elif name == "color_grade":
+            if lut.shape[0] != 2:
+                raise ValueError("one colour grade per pointwise run")
+            lut = grade_lut(p)
+            fpar[k] = p.saturation, *LUMA
+        else:
+            if weights.shape != (1, 1):
+                raise ValueError("one mask per pointwise run")
+            weights = mask_weights(h, w, p)
+    return _pointwise_kernel(img, ops, fpar, ipar, lut, weights)

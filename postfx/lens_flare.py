@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from postfx.effects import add_upsampled, bright_half, gaussian_blur
+from postfx.effects import add_upsampled, bright_half, gaussian_blur, threads_for
 from postfx.params import LensFlare
 
 
@@ -146,8 +146,9 @@ def features(img: np.ndarray, p: LensFlare) -> np.ndarray:
     """The flare's light at half resolution, before the blur and ``intensity``."""
     half = bright_half(img, p.threshold)
     cx, cy, rho, halo = geometry(img.shape, p)
-    return _features(half, downsample2(half), cx, cy, rho, ghost_table(p), halo,
-                     np.array(p.halo_tint, np.float32), int(p.falloff))
+    with threads_for(half.size):
+        return _features(half, downsample2(half), cx, cy, rho, ghost_table(p), halo,
+                         np.array(p.halo_tint, np.float32), int(p.falloff))
 
 
 def lens_flare(img: np.ndarray, p: LensFlare) -> np.ndarray:

@@ -146,3 +146,18 @@ def test_blocked_gaussian_matches_numpy_on_odd_sizes(sigma):
         ref = postfx.apply_effect(name, x, None, p, lens)
         gpu = osmesa.apply_effect(name, x, None, p, lens)
         assert np.abs(ref - gpu).max() <= 2e-6 * max(1.0, float(np.abs(ref).max()))
+
+
+@pytest.mark.parametrize("width", [W, 37])  # odd width: noise pairs straddle rows
+def test_numpy_pointwise_run_equals_the_effects_one_after_the_other(width):
+    hdr, depth = _inputs()
+    hdr, depth = hdr[:, :width].copy(), depth[:, :width].copy()
+    lens = postfx.Lens(70.0, width, H)
+    run = [(n, CASES[n]) for n in ("sensor_noise", "tonemap", "color_grade", "laparoscope_mask")]
+    separate = hdr
+    for name, p in run:
+        separate = postfx.apply_effect(name, separate, depth, p, lens, seed=9).astype(np.float32)
+    assert np.array_equal(effects.pointwise_chain(hdr, run, seed=9), separate)  # to the bit
+    res = postfx.apply_chain(hdr, depth, [("blur", CASES["blur"]), *run], lens, backend="numpy", seed=9)
+    assert res.fused == {"sensor_noise": ["tonemap", "color_grade", "laparoscope_mask"]}
+    assert set(res.seconds) == {"blur", "sensor_noise"}
