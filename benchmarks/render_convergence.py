@@ -81,7 +81,7 @@ def main() -> None:
     _, ss4_ldr, _ = render(variant(base, width, height, "uniform", ref_samples // 4, 4))
     result["reference_vs_ss4_flip"] = round(flip(ss4_ldr, ref_ldr)[0], 5)
     print(f"reference (2x2) against 4x4 supersampling: FLIP {result['reference_vs_ss4_flip']:.4f}")
-    samples_list = (1, 4, 16) if args.quick else (1, 2, 4, 8, 16, 32, 64)
+    samples_list = (1, 4, 16) if args.quick else (1, 2, 4, 8, 12, 16, 32, 64)
     best = None
     print(f"{'setting':24s} {'seconds':>8s} {'FLIP':>8s} {'rel RMSE':>9s}")
     settings = [(ss, sampling, m, "blue_noise", False) for ss in (1, 2) for sampling in ("uniform", "adaptive")
