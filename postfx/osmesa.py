@@ -387,10 +387,11 @@ def effect_on_gpu(ctx: Context, name: str, tex, depth: np.ndarray, params, lens,
 
 def fused_groups(chain, fuse: bool = True):
     """The chain cut into passes: each effect with the run of pointwise effects that follows it (they
-    are drawn in its last pass); one effect per group without ``fuse``."""
+    are drawn in its last pass, each at most once: their uniforms have one name per effect); one
+    effect per group without ``fuse``."""
     groups = []
     for name, params in chain:
-        if fuse and groups and name in POINTWISE:
+        if fuse and groups and name in POINTWISE and name not in {n for n, _ in groups[-1]}:
             groups[-1].append((name, params))
         else:
             groups.append([(name, params)])

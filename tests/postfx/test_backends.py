@@ -161,3 +161,14 @@ def test_numpy_pointwise_run_equals_the_effects_one_after_the_other(width):
     res = postfx.apply_chain(hdr, depth, [("blur", CASES["blur"]), *run], lens, backend="numpy", seed=9)
     assert res.fused == {"sensor_noise": ["tonemap", "color_grade", "laparoscope_mask"]}
     assert set(res.seconds) == {"blur", "sensor_noise"}
+
+
+@needs_osmesa
+@pytest.mark.osmesa
+def test_a_repeated_pointwise_effect_starts_a_new_pass():
+    hdr, depth = _inputs()
+    chain = [("blur", CASES["blur"]), ("tonemap", Tonemap(exposure=-1.0)), ("tonemap", Tonemap(exposure=0.5, curve="reinhard"))]
+    assert [[n for n, _ in g] for g in osmesa.fused_groups(chain)] == [["blur", "tonemap"], ["tonemap"]]
+    ref = postfx.apply_chain(hdr, depth, chain, LENS, backend="numpy").image
+    gpu = postfx.apply_chain(hdr, depth, chain, LENS, backend="osmesa").image
+    assert np.abs(ref - gpu).max() < 1e-5
