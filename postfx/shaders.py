@@ -290,19 +290,21 @@ void main() {{
     # half resolution: the 2x2 mean of the part above threshold in luminance (effects._bright_half)
     "bright_half": _HEADER + "uniform sampler2D img;\nuniform float threshold;\nuniform vec3 luma;\n"
     "uniform ivec2 out_size;\nuniform int use_threshold;\n" + """
+vec3 part(vec3 x) {
+  if (use_threshold == 1) {
+    float l = dot(luma, x);
+    x *= max(l - threshold, 0.0) / max(l, 1e-12);
+  }
+  return x;
+}
 void main() {
   ivec2 size = textureSize(img, 0);
-""" + _OUT_PIXEL + """  vec3 acc = vec3(0.0);
-  for (int dy = 0; dy < 2; ++dy) {
-    for (int dx = 0; dx < 2; ++dx) {
-      vec3 x = texelFetch(img, min(2 * p + ivec2(dx, dy), size - 1), 0).rgb;
-      if (use_threshold == 1) {
-        float l = dot(luma, x);
-        x *= max(l - threshold, 0.0) / max(l, 1e-12);
-      }
-      acc += x;
-    }
-  }
+  vec2 inv = 1.0 / vec2(size);
+""" + _OUT_PIXEL + """  ivec2 q0 = 2 * p, q1 = min(2 * p + 1, size - 1);
+  vec3 acc = part(texture(img, (vec2(q0.x, q0.y) + 0.5) * inv).rgb);
+  acc += part(texture(img, (vec2(q1.x, q0.y) + 0.5) * inv).rgb);
+  acc += part(texture(img, (vec2(q0.x, q1.y) + 0.5) * inv).rgb);
+  acc += part(texture(img, (vec2(q1.x, q1.y) + 0.5) * inv).rgb);
   gl_FragData[0] = vec4(acc * 0.25, 1.0);
 }
 """,
