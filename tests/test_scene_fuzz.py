@@ -75,7 +75,7 @@ def mutated_scenes(draw):
     return data
 
 
-@settings(max_examples=400, deadline=5000, database=None,  # no replay of stale examples across schema changes
+@settings(max_examples=400, deadline=None, database=None,  # no replay of stale examples across schema changes
           suppress_health_check=[HealthCheck.function_scoped_fixture,
                                  HealthCheck.too_slow])
 @given(data=mutated_scenes())
