@@ -7,9 +7,13 @@ The thesis's settings are kept: EBM 20 iterations per step (its 5.3 figures), dt
 energy propagation one step per 60 Hz frame (dt = 1/60 s) with energy_rho = 1 m^2/s, which our forward
 Euler (4.12) needs 1,482 potential sub-steps to resolve (printed; the numba path evaluates them in closed
 form, sim/cnn_energy.py ModalPropagation). One core: numba and BLAS pinned to one thread. Each rate is the
-median of ``repeats`` timed runs.
+median of ``repeats`` timed runs (wall time); the load average at the start is printed with them, because the
+machine may be shared.
 
-Usage: .venv/bin/python benchmarks/zhang_rates.py [--quick] [--kernel numba|numpy]
+EBM runs with ``--kernel`` (default ``blocked``, sim/ebm_blocked.py) and, for the ratio measured in the same
+run, with the scalar numba kernel (``*_scalar_hz``); the other integrators with ``numba`` (or ``numpy``).
+
+Usage: .venv/bin/python benchmarks/zhang_rates.py [--quick] [--kernel blocked|numba|numpy]
 Last line: one JSON object of steps per second ("<case>_hz") with the thesis's reference rates.
 """
 from __future__ import annotations
@@ -85,17 +89,25 @@ def describe(name: str, integrator, settings: dict, dt: float) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer steps and repeats")
-    parser.add_argument("--kernel", choices=("numba", "numpy"), default="numba",
-                        help="numba kernels (default) or the NumPy reference paths")
+    parser.add_argument("--kernel", choices=("blocked", "numba", "numpy"), default="blocked",
+                        help="EBM kernel (default blocked); the other integrators use numba, or numpy with numpy")
     args = parser.parse_args()
     steps, repeats = (20, 3) if args.quick else (100, 7)
     numba.set_num_threads(1)
     result: dict = {}
-    kernel = {"kernel": args.kernel}
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    ebm_kernel = {"kernel": args.kernel}
+    kernel = {"kernel": "numpy" if args.kernel == "numpy" else "numba"}
+    scalar = [] if args.kernel != "blocked" else [
+        ("ebm_isotropic_480tets_scalar", "ebm", ebm_block("neo_hookean"), {"iterations": 20, "kernel": "numba"}, 1e-3,
+         None),
+        ("ebm_anisotropic_480tets_scalar", "ebm", ebm_block("anisotropic_neo_hookean", fibre=[0.0, 0.0, 1.0]),
+         {"iterations": 20, "kernel": "numba"}, 1e-3, None)]
     cases = [
-        ("ebm_isotropic_480tets", "ebm", ebm_block("neo_hookean"), {"iterations": 20, **kernel}, 1e-3, 1000.0),
+        ("ebm_isotropic_480tets", "ebm", ebm_block("neo_hookean"), {"iterations": 20, **ebm_kernel}, 1e-3, 1000.0),
         ("ebm_anisotropic_480tets", "ebm", ebm_block("anisotropic_neo_hookean", fibre=[0.0, 0.0, 1.0]),
-         {"iterations": 20, **kernel}, 1e-3, 200.0),
+         {"iterations": 20, **ebm_kernel}, 1e-3, 200.0),
+        *scalar,
         ("cnn_energy_1331nodes", "cnn", cnn_cube(), {"force_model": "energy", "K": 4.0, **kernel}, 1.0 / 60.0, 30.0),
         # forward Euler needs damping of the highest modes to be stable at all (docs/integrators-zhang.md)
         ("cnn_linear_fem_1331nodes", "cnn", cnn_cube(),
@@ -113,7 +125,7 @@ def main() -> None:
     result["settings"] = {"ebm_iterations": 20, "ebm_dt_s": 1e-3, "cnn_energy_dt_s": round(1.0 / 60.0, 6),
                           "energy_rho_m2_per_s": 1.0, "steps": steps, "repeats": repeats, "statistic": "median"}
     result["machine"] = (f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus, 1 numba thread, "
-                         f"1 BLAS thread, kernel {args.kernel}")
+                         f"1 BLAS thread, ebm kernel {args.kernel}, load average {load:.2f} at the start")
     print(json.dumps(result))
 
 

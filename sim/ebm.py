@@ -95,7 +95,7 @@ class EBM:
         self.update = settings.get("update", "average")
         if self.update not in UPDATES:
             raise ValueError(f"ebm: update must be one of {', '.join(UPDATES)}, found {self.update!r}")
-        self.kernel = settings.get("kernel", "numba")
+        self.kernel = settings.get("kernel", "blocked")
         if self.kernel not in KERNELS:
             raise ValueError(f"ebm: kernel must be one of {', '.join(KERNELS)}, found {self.kernel!r}")
         if model.constitutive not in ebm_kernels.MATERIALS:
@@ -145,7 +145,7 @@ class EBM:
                                                              ~kinematic)
         n_blocks = self._node_index.shape[0]
         self._out = np.zeros((n_blocks, ebm_blocked.N_OUT * ebm_blocked.LANES))
-        self._scratch = np.zeros(9 * ebm_blocked.LANES)
+        self._corners = np.zeros((n_blocks, ebm_blocked.N_OUT * ebm_blocked.LANES))
         self._relax_blocks = np.zeros((1, ebm_blocked.N_RELAX * ebm_blocked.LANES))
         # kinematic targets (Model.kinematic_targets): X, or X + fraction(t) displacement of the last prescribed
         # group that lists the node
@@ -247,7 +247,7 @@ class EBM:
         if self.kernel == "blocked":
             x = np.ascontiguousarray(x, dtype=np.float64)
             prony, (a, _, _) = self._relaxation(h)
-            done = ebm_blocked.sweeps(x, self._node_index, self._params, self._relax_blocks, self._out, self._scratch,
+            done = ebm_blocked.sweeps(x, self._node_index, self._params, self._relax_blocks, self._out, self._corners,
                                       self._free_nodes, self._free_start, self._free_slot, self._node_scale,
                                       self._code, prony, a, self.iterations)
             if done < self.iterations:
@@ -313,7 +313,7 @@ class EBM:
             done, work, strain, stretch = ebm_blocked.step(
                 x_old, v_old, x, v, t, h, self._X, self._f_ext, self._w, self._kin_nodes, self._kin_group,
                 self._kin_displacement, self._group_t0, self._group_t1, self._node_index, self._params,
-                self._relax_blocks, self._out, self._scratch, self._free_nodes, self._free_start, self._free_slot,
+                self._relax_blocks, self._out, self._corners, self._free_nodes, self._free_start, self._free_slot,
                 self._kin_start, self._kin_slot, self._node_scale, self._last_load_force, self.model.n_tets,
                 self._code, prony, a, self.iterations)
             if done < self.iterations:

@@ -1,51 +1,64 @@
-"""Blocked EBM kernels (``kernel = "blocked"``, the default of ``sim.ebm``): one whole step (prediction 5.13,
+"""Blocked EBM kernels (``kernel = "blocked"``, the default of ``sim.ebm``): one substep (prediction 5.13,
 ``iterations`` Jacobi sweeps 5.7-5.9 / 5.14, velocities 5.15 and the energy accounting) in one compiled
 call, with the per-tet work vectorised across tets.
 
 The energy balance is a Jacobi update (every tet sees the positions of the previous sweep, the increments
-are summed per node), so all tets of a sweep are independent. A sweep runs over blocks of ``LANES``
-consecutive tets: the block's edges ``e_k = x_k - x_0`` are gathered into a structure-of-arrays scratch,
-a branch-free loop over the lanes (energy, Piola stress, node gradients, multiplier, increments; LLVM
-vectorises it, 8-wide zmm FMAs with AVX-512 — check with ``_sweep_block.inspect_asm``) writes each tet's
-four increments to a per-tet buffer, and a node pass sums, for every free node, its increments in tet
-order (a gather over a precomputed incidence list: no scatter, and the same summation order as the scalar
-kernel ``sim.ebm_kernels.ebm_iterations``), then applies ``x_i += dx_i / n_i`` (update = "average").
+are summed per node), so all tets of a sweep are independent. Tets are taken in blocks of ``LANES``
+consecutive tets; every per-tet quantity is stored in rows of ``LANES`` values (structure of arrays):
+
+- ``corners`` holds, per tet, the positions of its four nodes (12 rows), written by the node pass;
+- a branch-free loop over the lanes of a block (energy, Piola stress, node gradients, multiplier,
+  increments; LLVM vectorises it with 8-wide zmm FMAs on AVX-512: ``_sweep_block.inspect_asm``) reads them
+  and writes the tet's four increments (12 rows) to ``out``;
+- the node pass, for every free node, sums its increments over its incidences in tet order (the scalar
+  kernel's summation order; no scatter), applies ``x_i += dx_i / n_i`` (update = "average") and writes
+  the new position to the node's corner slots, so no gather by node index is needed in the lane loop.
 
 Per lane, with ``g_k = P b_k`` (``b_k`` the rows of Dm^-1, ``b_0 = -(b_1 + b_2 + b_3)``):
-``lambda' = Psi / sum_j w_j |g_j|^2`` and ``dx_k = -w_k lambda' g_k``. This is 5.7-5.8 with the volume
-cancelled (``W = V Psi``, ``dW/dx_k = V g_k``: the multiplier scales as 1/V, the increment not at all);
-a vanishing denominator (``<= 1e-300``, a tet at rest to the last bit) gives no increment, a NaN one (an
-inverted tet of a split model, where J^(-2/3) is undefined) fails the sweep, as in the scalar kernel.
-J^(-1/3) comes from ``sim.ebm_kernels._inverse_cube_root`` (bit-pattern seed and three cubically
-convergent steps: within 3.3e-16 of 1 / cbrt(J), no libm call, so the loop vectorises).
+``lambda' = Psi / sum_j w_j |g_j|^2`` and ``dx_k = -w_k lambda' g_k``: 5.7-5.8 with the volume cancelled
+(``W = V Psi``, ``dW/dx_k = V g_k``: the multiplier scales as 1/V, the increment not at all). A vanishing
+denominator (``<= 1e-300``: a tet at rest to the last bit) gives no increment; a NaN one (an inverted tet of a
+split model, where J^(-2/3) is undefined) fails the sweep, as in the scalar kernel.
+
+The split models (Zhang 5.35, 5.37) are evaluated from the displacement gradient ``H = F - I`` as in
+``sim.ebm_kernels`` (their energies keep their relative accuracy at rest), with fewer operations:
+``cof H`` gives ``I2(H) = tr cof H`` and ``det H = H_0. cof H_0.``, and ``cof F = (1 + tr H) I - H^T + cof H``;
+J^(-1/3) = y comes from ``sim.ebm_kernels._inverse_cube_root`` (no libm call, so the loop vectorises),
+``1/J = y^3``, and ``J^(-2/3) - 1 = N / Q`` with ``N = -j y^3 (y + 1)``, ``Q = y^2 + y + 1`` (no cancellation).
+``Psi`` is kept as a fraction ``num / den`` (``den = Q``, or ``Q^2`` with the fibre), so that a sweep divides
+once per tet: ``lambda' = num / (den sum_j w_j |g_j|^2)``.
 
 Kernels use ``fastmath={"contract"}`` only (fused multiply-add: one rounding instead of two, nothing else;
-no reassociation, no finite-math assumptions, so NaN checks keep working) and ``error_model="numpy"`` (no
-division checks: divisors are guarded by selects). Results equal the scalar kernel's to rounding (tested to
-1e-10 after several steps: tests/sim/test_ebm_kernels.py).
+no reassociation and no finite-math assumption, so the NaN checks keep working) and ``error_model="numpy"``
+(no division checks: divisors are guarded by selects). Results equal the scalar kernel's to rounding
+(tested to 1e-10 after several steps: tests/sim/test_ebm_kernels.py).
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from sim.ebm_kernels import ANISOTROPIC_NEO_HOOKEAN, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK, _energy_piola_root
+from sim.ebm_kernels import (ANISOTROPIC_NEO_HOOKEAN, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK, _energy_piola_root,
+                             _inverse_cube_root)
 
-LANES = 16  # tets per block: one zmm register of float64 per quantity
+LANES = 16  # tets per block (two zmm registers of float64 per quantity)
 # rows of a block's parameter array (each row holds LANES values)
 ROW_B = 0  # 9 rows: b_k[c] = Dm_inv[k - 1, c] at ROW_B + 3 (k - 1) + c, k = 1..3
 ROW_W = 9  # 4 rows: inverse masses w_0..w_3 of the tet's nodes
 ROW_MU = 13
-ROW_LAM = 14
-ROW_ETA = 15
-ROW_FIBRE = 16  # 3 rows: a0
-ROW_VOLUME = 19
-N_ROWS = 20
+ROW_LAM = 14  # lambda (Lame)
+ROW_KAPPA = 15  # bulk modulus lambda + 2 mu / 3 of the split models
+ROW_ETA = 16
+ROW_FIBRE = 17  # 3 rows: a0
+ROW_FIBRE_NORM = 20  # |a0|^2 - 1
+ROW_VOLUME = 21
+N_ROWS = 22
 # rows of the Prony array (rebuilt each step): Gamma (9, row-major), g
 ROW_GAMMA = 0
 ROW_G = 9
 N_RELAX = 10
-# rows of the per-tet output: dx_k (or dW/dx_k for the forces) at 3 k + c, then W and |F|^2 (forces only)
+# rows of the per-tet output: dx_k (or dW/dx_k for the forces) at 3 k + c, then W and |F|^2 (forces only).
+# The corner positions use the same layout (rows 0..11, two unused), so an incidence has one offset in both.
 OUT_D = 0
 OUT_W = 12
 OUT_FF = 13
@@ -63,8 +76,9 @@ def pack(tets, Dm_inv, volume, mu, lam, eta, fibre, w, n_nodes, free):
 
     Returns ``(node_index (nb, 4 LANES) uint32 = 3 x node, params (nb, N_ROWS LANES), free_nodes (nf,) int64,
     free_start (nf + 1,) int64, free_slot uint32, kin_nodes, kin_start, kin_slot)``: ``*_slot[p]`` is the
-    offset in the flattened output ``(nb, N_OUT LANES)`` of coordinate x of one (tet, corner) incident on the
-    node, the node's incidences in increasing tet order (the scalar kernel's summation order)."""
+    offset in a flattened ``(nb, N_OUT LANES)`` output of coordinate
+    x of one (tet, corner) incident on the node, the node's incidences in increasing tet order; the same offset
+    in the corner positions."""
     m = tets.shape[0]
     nb = (m + LANES - 1) // LANES
     order = np.concatenate([np.arange(m), np.zeros(nb * LANES - m, np.int64)])  # padding: tet 0
@@ -76,8 +90,11 @@ def pack(tets, Dm_inv, volume, mu, lam, eta, fibre, w, n_nodes, free):
     params[blk, ROW_W:ROW_W + 4, lane] = w[tets[order]]
     params[blk, ROW_MU, lane] = mu[order]
     params[blk, ROW_LAM, lane] = lam[order]
+    params[blk, ROW_KAPPA, lane] = lam[order] + 2.0 * mu[order] / 3.0  # as sim.ebm_kernels
     params[blk, ROW_ETA, lane] = eta[order]
-    params[blk, ROW_FIBRE:ROW_FIBRE + 3, lane] = fibre[order]
+    a0 = fibre[order]
+    params[blk, ROW_FIBRE:ROW_FIBRE + 3, lane] = a0
+    params[blk, ROW_FIBRE_NORM, lane] = a0[:, 0] * a0[:, 0] + a0[:, 1] * a0[:, 1] + a0[:, 2] * a0[:, 2] - 1.0
     params[blk, ROW_VOLUME, lane] = volume[order]
     # incidences (node, tet, corner) sorted by node then tet
     node = tets.ravel()
@@ -94,10 +111,8 @@ def pack(tets, Dm_inv, volume, mu, lam, eta, fibre, w, n_nodes, free):
         return (nodes.astype(np.int64), np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
                 slot[sel].astype(np.uint32))
 
-    free_nodes = np.flatnonzero(free)
-    kin_nodes = np.flatnonzero(~free)
-    return (node_index.reshape(nb, 4 * LANES), params.reshape(nb, N_ROWS * LANES), *csr(free_nodes),
-            *csr(kin_nodes))
+    return (node_index.reshape(nb, 4 * LANES), params.reshape(nb, N_ROWS * LANES), *csr(np.flatnonzero(free)),
+            *csr(np.flatnonzero(~free)))
 
 
 def pack_relaxation(Gamma, g, n_blocks):
@@ -110,49 +125,115 @@ def pack_relaxation(Gamma, g, n_blocks):
     return relax.reshape(n_blocks, N_RELAX * LANES)
 
 
-@njit(cache=True, inline="always")
-def _gather(xf, node_index, scratch):
-    """Edges e_k = x_k - x_0 (k = 1..3) of the block's tets into ``scratch`` rows 0..8."""
-    for l in range(LANES):
-        i0 = node_index[l]
-        i1 = node_index[LANES + l]
-        i2 = node_index[2 * LANES + l]
-        i3 = node_index[3 * LANES + l]
-        x0, y0, z0 = xf[i0], xf[i0 + _Y], xf[i0 + _Z]
-        scratch[0 * LANES + l] = xf[i1] - x0
-        scratch[1 * LANES + l] = xf[i1 + _Y] - y0
-        scratch[2 * LANES + l] = xf[i1 + _Z] - z0
-        scratch[3 * LANES + l] = xf[i2] - x0
-        scratch[4 * LANES + l] = xf[i2 + _Y] - y0
-        scratch[5 * LANES + l] = xf[i2 + _Z] - z0
-        scratch[6 * LANES + l] = xf[i3] - x0
-        scratch[7 * LANES + l] = xf[i3 + _Y] - y0
-        scratch[8 * LANES + l] = xf[i3 + _Z] - z0
+@njit(cache=True)
+def load_corners(x, node_index, corners):
+    """Every tet's node positions into ``corners`` (nb, N_OUT LANES; rows 3 k + c), padding lanes included."""
+    xf = x.reshape(x.size)
+    for blk in range(node_index.shape[0]):
+        for k in range(4):
+            for l in range(LANES):
+                i = node_index[blk, k * LANES + l]
+                corners[blk, (3 * k) * LANES + l] = xf[i]
+                corners[blk, (3 * k + 1) * LANES + l] = xf[i + _Y]
+                corners[blk, (3 * k + 2) * LANES + l] = xf[i + _Z]
 
 
 @njit(cache=True, inline="always")
-def _lanes(code, prony, forces, p, r, s, out, relax_a, lanes):
+def _split_model(F, mu, kappa, eta, ax, ay, az, a0_norm, fibre):
+    """Zhang 5.35 (+ 5.37 when ``fibre``): ``(num, den, P)`` with ``Psi = num / den``, from H = F - I (module
+    docstring); NaN for J <= 0. The same quantities as ``sim.ebm_kernels._energy_piola`` up to rounding."""
+    f00, f01, f02, f10, f11, f12, f20, f21, f22 = F
+    h00, h11, h22 = f00 - 1.0, f11 - 1.0, f22 - 1.0
+    # cof H (the off-diagonal entries of H are F's)
+    c00 = h11 * h22 - f21 * f12
+    c01 = f12 * f20 - h22 * f10
+    c02 = f10 * f21 - f20 * h11
+    c10 = f21 * f02 - f01 * h22
+    c11 = h22 * h00 - f02 * f20
+    c12 = f20 * f01 - h00 * f21
+    c20 = f01 * f12 - h11 * f02
+    c21 = f02 * f10 - f12 * h00
+    c22 = h00 * h11 - f10 * f01
+    tr = h00 + h11 + h22
+    I2 = c00 + c11 + c22
+    detH = h00 * c00 + f01 * c01 + f02 * c02
+    j = tr + I2 + detH  # J - 1
+    J = 1.0 + j
+    HH = (h00 * h00 + f01 * f01 + f02 * f02 + f10 * f10 + h11 * h11 + f12 * f12 + f20 * f20 + f21 * f21
+          + h22 * h22)
+    d = 2.0 * tr + HH  # I1 - 3
+    # cof F = (1 + tr H) I - H^T + cof H
+    C00 = 1.0 + (h11 + h22) + c00
+    C11 = 1.0 + (h00 + h22) + c11
+    C22 = 1.0 + (h00 + h11) + c22
+    C01, C02, C12 = c01 - f10, c02 - f20, c12 - f21
+    C10, C20, C21 = c10 - f01, c20 - f02, c21 - f12
+    y = _inverse_cube_root(J)  # J^(-1/3), NaN for J <= 0
+    y2 = y * y
+    inv_J = y2 * y
+    Q = y2 + y + 1.0
+    N = -j * inv_J * (y + 1.0)  # J^(-2/3) - 1 = N / Q
+    a = mu * y2
+    b = a * (3.0 + d) * (1.0 / 3.0) * inv_J
+    s = kappa * j - b  # P = mu J^(-2/3) F + (kappa (J - 1) - mu J^(-2/3) I1 / (3 J)) cof F
+    # Psi Q = mu/2 ((3 + d) N + d Q) + kappa/2 j^2 Q   (Psi = mu/2 (3 m + d + m d) + kappa/2 j^2, m = N / Q)
+    num = 0.5 * mu * ((3.0 + d) * N + d * Q) + 0.5 * kappa * j * j * Q
+    if fibre:
+        fa0 = f00 * ax + f01 * ay + f02 * az
+        fa1 = f10 * ax + f11 * ay + f12 * az
+        fa2 = f20 * ax + f21 * ay + f22 * az
+        I4 = fa0 * fa0 + fa1 * fa1 + fa2 * fa2
+        # I4 - 1 = 2 a0.H a0 + |H a0|^2 + (|a0|^2 - 1); (I4bar - 1) Q = (1 + q) N + q Q, without cancellation
+        ha0, ha1, ha2 = fa0 - ax, fa1 - ay, fa2 - az
+        q = 2.0 * (ax * ha0 + ay * ha1 + az * ha2) + ha0 * ha0 + ha1 * ha1 + ha2 * ha2 + a0_norm
+        D = (1.0 + q) * N + q * Q
+        num = num * Q + 0.5 * eta * D * D
+        den = Q * Q
+        e = eta * (y2 * I4 - 1.0) * y2  # P_f = e (2 (F a0) a0^T - 2/3 I4 F^-T)
+        s = s - e * (2.0 / 3.0) * I4 * inv_J
+        e2 = 2.0 * e
+        u0, u1, u2 = e2 * fa0, e2 * fa1, e2 * fa2
+        P = (a * f00 + s * C00 + u0 * ax, a * f01 + s * C01 + u0 * ay, a * f02 + s * C02 + u0 * az,
+             a * f10 + s * C10 + u1 * ax, a * f11 + s * C11 + u1 * ay, a * f12 + s * C12 + u1 * az,
+             a * f20 + s * C20 + u2 * ax, a * f21 + s * C21 + u2 * ay, a * f22 + s * C22 + u2 * az)
+        return num, den, P
+    P = (a * f00 + s * C00, a * f01 + s * C01, a * f02 + s * C02,
+         a * f10 + s * C10, a * f11 + s * C11, a * f12 + s * C12,
+         a * f20 + s * C20, a * f21 + s * C21, a * f22 + s * C22)
+    return num, Q, P
+
+
+@njit(cache=True, inline="always")
+def _lanes(code, prony, forces, c, p, r, out, blk, rblk, relax_a, lanes):
     """The branch-free loop over the lanes of one block (``code``, ``prony``, ``forces`` are constants at each
-    call site). Sweep (``forces`` False): the increments ``-w_k lambda' g_k`` into ``out``; returns the
-    number of NaN multipliers. Forces: ``dW/dx_k = V P b_k``, ``W = V Psi`` and ``|F|^2`` into ``out``."""
+    call site). ``c``: the block's corner positions. Sweep (``forces`` False): the increments
+    ``-w_k lambda' g_k`` into ``out``; returns the number of NaN multipliers. Forces: ``dW/dx_k = V P b_k``,
+    ``W = V Psi`` and ``|F|^2`` into ``out``."""
     bad = 0
     for l in range(lanes):  # a run-time trip count: with a constant one LLVM unrolls the loop instead
-        b10, b11, b12 = p[(ROW_B + 0) * LANES + l], p[(ROW_B + 1) * LANES + l], p[(ROW_B + 2) * LANES + l]
-        b20, b21, b22 = p[(ROW_B + 3) * LANES + l], p[(ROW_B + 4) * LANES + l], p[(ROW_B + 5) * LANES + l]
-        b30, b31, b32 = p[(ROW_B + 6) * LANES + l], p[(ROW_B + 7) * LANES + l], p[(ROW_B + 8) * LANES + l]
-        e1x, e1y, e1z = s[0 * LANES + l], s[1 * LANES + l], s[2 * LANES + l]
-        e2x, e2y, e2z = s[3 * LANES + l], s[4 * LANES + l], s[5 * LANES + l]
-        e3x, e3y, e3z = s[6 * LANES + l], s[7 * LANES + l], s[8 * LANES + l]
+        b10, b11, b12 = p[blk, (ROW_B + 0) * LANES + l], p[blk, (ROW_B + 1) * LANES + l], p[blk, (ROW_B + 2) * LANES + l]
+        b20, b21, b22 = p[blk, (ROW_B + 3) * LANES + l], p[blk, (ROW_B + 4) * LANES + l], p[blk, (ROW_B + 5) * LANES + l]
+        b30, b31, b32 = p[blk, (ROW_B + 6) * LANES + l], p[blk, (ROW_B + 7) * LANES + l], p[blk, (ROW_B + 8) * LANES + l]
+        x0, y0, z0 = c[blk, 0 * LANES + l], c[blk, 1 * LANES + l], c[blk, 2 * LANES + l]
+        e1x, e1y, e1z = c[blk, 3 * LANES + l] - x0, c[blk, 4 * LANES + l] - y0, c[blk, 5 * LANES + l] - z0
+        e2x, e2y, e2z = c[blk, 6 * LANES + l] - x0, c[blk, 7 * LANES + l] - y0, c[blk, 8 * LANES + l] - z0
+        e3x, e3y, e3z = c[blk, 9 * LANES + l] - x0, c[blk, 10 * LANES + l] - y0, c[blk, 11 * LANES + l] - z0
         F = (e1x * b10 + e2x * b20 + e3x * b30, e1x * b11 + e2x * b21 + e3x * b31, e1x * b12 + e2x * b22 + e3x * b32,
              e1y * b10 + e2y * b20 + e3y * b30, e1y * b11 + e2y * b21 + e3y * b31, e1y * b12 + e2y * b22 + e3y * b32,
              e1z * b10 + e2z * b20 + e3z * b30, e1z * b11 + e2z * b21 + e3z * b31, e1z * b12 + e2z * b22 + e3z * b32)
-        psi, P = _energy_piola_root(code, F, p[ROW_MU * LANES + l], p[ROW_LAM * LANES + l], p[ROW_ETA * LANES + l],
-                                    p[(ROW_FIBRE + 0) * LANES + l], p[(ROW_FIBRE + 1) * LANES + l],
-                                    p[(ROW_FIBRE + 2) * LANES + l], True)
+        mu = p[blk, ROW_MU * LANES + l]
+        if code == NEO_HOOKEAN or code == ANISOTROPIC_NEO_HOOKEAN:
+            num, den, P = _split_model(F, mu, p[blk, ROW_KAPPA * LANES + l], p[blk, ROW_ETA * LANES + l],
+                                       p[blk, (ROW_FIBRE + 0) * LANES + l], p[blk, (ROW_FIBRE + 1) * LANES + l],
+                                       p[blk, (ROW_FIBRE + 2) * LANES + l], p[blk, ROW_FIBRE_NORM * LANES + l],
+                                       code == ANISOTROPIC_NEO_HOOKEAN)
+        else:
+            num, P = _energy_piola_root(code, F, mu, p[blk, ROW_LAM * LANES + l], 0.0, 0.0, 0.0, 0.0, True)
+            den = 1.0
         if prony:  # P^ = a P - F Gamma, Psi^ = a Psi - g (sim.ebm_kernels._relaxed)
-            G = (r[(ROW_GAMMA + 0) * LANES + l], r[(ROW_GAMMA + 1) * LANES + l], r[(ROW_GAMMA + 2) * LANES + l],
-                 r[(ROW_GAMMA + 3) * LANES + l], r[(ROW_GAMMA + 4) * LANES + l], r[(ROW_GAMMA + 5) * LANES + l],
-                 r[(ROW_GAMMA + 6) * LANES + l], r[(ROW_GAMMA + 7) * LANES + l], r[(ROW_GAMMA + 8) * LANES + l])
+            G = (r[rblk, (ROW_GAMMA + 0) * LANES + l], r[rblk, (ROW_GAMMA + 1) * LANES + l], r[rblk, (ROW_GAMMA + 2) * LANES + l],
+                 r[rblk, (ROW_GAMMA + 3) * LANES + l], r[rblk, (ROW_GAMMA + 4) * LANES + l], r[rblk, (ROW_GAMMA + 5) * LANES + l],
+                 r[rblk, (ROW_GAMMA + 6) * LANES + l], r[rblk, (ROW_GAMMA + 7) * LANES + l], r[rblk, (ROW_GAMMA + 8) * LANES + l])
             f00, f01, f02, f10, f11, f12, f20, f21, f22 = F
             P = (relax_a * P[0] - (f00 * G[0] + f01 * G[3] + f02 * G[6]),
                  relax_a * P[1] - (f00 * G[1] + f01 * G[4] + f02 * G[7]),
@@ -163,11 +244,10 @@ def _lanes(code, prony, forces, p, r, s, out, relax_a, lanes):
                  relax_a * P[6] - (f20 * G[0] + f21 * G[3] + f22 * G[6]),
                  relax_a * P[7] - (f20 * G[1] + f21 * G[4] + f22 * G[7]),
                  relax_a * P[8] - (f20 * G[2] + f21 * G[5] + f22 * G[8]))
-            psi = relax_a * psi - r[ROW_G * LANES + l]
+            num = relax_a * num - r[rblk, ROW_G * LANES + l] * den
         if forces:
-            V = p[ROW_VOLUME * LANES + l]
+            V = p[blk, ROW_VOLUME * LANES + l]
             P = (V * P[0], V * P[1], V * P[2], V * P[3], V * P[4], V * P[5], V * P[6], V * P[7], V * P[8])
-            psi = V * psi
         # node gradients g_k = P b_k (rows of P times the rows of Dm^-1), g_0 = -(g_1 + g_2 + g_3)
         g1x = P[0] * b10 + P[1] * b11 + P[2] * b12
         g1y = P[3] * b10 + P[4] * b11 + P[5] * b12
@@ -183,102 +263,114 @@ def _lanes(code, prony, forces, p, r, s, out, relax_a, lanes):
         g0z = -(g1z + g2z + g3z)
         if forces:
             s0 = s1 = s2 = s3 = 1.0
-            out[OUT_W * LANES + l] = psi
-            out[OUT_FF * LANES + l] = (F[0] * F[0] + F[1] * F[1] + F[2] * F[2] + F[3] * F[3] + F[4] * F[4]
+            out[blk, OUT_W * LANES + l] = p[blk, ROW_VOLUME * LANES + l] * (num / den)
+            out[blk, OUT_FF * LANES + l] = (F[0] * F[0] + F[1] * F[1] + F[2] * F[2] + F[3] * F[3] + F[4] * F[4]
                                        + F[5] * F[5] + F[6] * F[6] + F[7] * F[7] + F[8] * F[8])
         else:
-            w0, w1 = p[(ROW_W + 0) * LANES + l], p[(ROW_W + 1) * LANES + l]
-            w2, w3 = p[(ROW_W + 2) * LANES + l], p[(ROW_W + 3) * LANES + l]
+            w0, w1 = p[blk, (ROW_W + 0) * LANES + l], p[blk, (ROW_W + 1) * LANES + l]
+            w2, w3 = p[blk, (ROW_W + 2) * LANES + l], p[blk, (ROW_W + 3) * LANES + l]
             denom = (w0 * (g0x * g0x + g0y * g0y + g0z * g0z) + w1 * (g1x * g1x + g1y * g1y + g1z * g1z)
                      + w2 * (g2x * g2x + g2y * g2y + g2z * g2z) + w3 * (g3x * g3x + g3y * g3y + g3z * g3z))
             ok = denom > 1e-300
-            lam_k = psi / (denom if ok else 1.0)  # 5.7 (volume cancelled)
+            lam_k = num / (den * denom if ok else 1.0)  # 5.7 (volume cancelled)
             nan = denom != denom
             bad += 1 if nan else 0
             lam_k = lam_k if ok else (np.nan if nan else 0.0)
             # 5.8: dx_k = -w_k lambda g_k
             s0, s1, s2, s3 = -(w0 * lam_k), -(w1 * lam_k), -(w2 * lam_k), -(w3 * lam_k)
-        out[(OUT_D + 0) * LANES + l] = s0 * g0x
-        out[(OUT_D + 1) * LANES + l] = s0 * g0y
-        out[(OUT_D + 2) * LANES + l] = s0 * g0z
-        out[(OUT_D + 3) * LANES + l] = s1 * g1x
-        out[(OUT_D + 4) * LANES + l] = s1 * g1y
-        out[(OUT_D + 5) * LANES + l] = s1 * g1z
-        out[(OUT_D + 6) * LANES + l] = s2 * g2x
-        out[(OUT_D + 7) * LANES + l] = s2 * g2y
-        out[(OUT_D + 8) * LANES + l] = s2 * g2z
-        out[(OUT_D + 9) * LANES + l] = s3 * g3x
-        out[(OUT_D + 10) * LANES + l] = s3 * g3y
-        out[(OUT_D + 11) * LANES + l] = s3 * g3z
+        out[blk, (OUT_D + 0) * LANES + l] = s0 * g0x
+        out[blk, (OUT_D + 1) * LANES + l] = s0 * g0y
+        out[blk, (OUT_D + 2) * LANES + l] = s0 * g0z
+        out[blk, (OUT_D + 3) * LANES + l] = s1 * g1x
+        out[blk, (OUT_D + 4) * LANES + l] = s1 * g1y
+        out[blk, (OUT_D + 5) * LANES + l] = s1 * g1z
+        out[blk, (OUT_D + 6) * LANES + l] = s2 * g2x
+        out[blk, (OUT_D + 7) * LANES + l] = s2 * g2y
+        out[blk, (OUT_D + 8) * LANES + l] = s2 * g2z
+        out[blk, (OUT_D + 9) * LANES + l] = s3 * g3x
+        out[blk, (OUT_D + 10) * LANES + l] = s3 * g3y
+        out[blk, (OUT_D + 11) * LANES + l] = s3 * g3z
+    return bad
+
+
+@njit(cache=True, inline="always")
+def _blocks(code, prony, forces, corners, params, relax, out, relax_a, lanes):
+    """The lane loop over every block (inlined into one function, so no call per block)."""
+    bad = 0
+    for blk in range(corners.shape[0]):
+        bad += _lanes(code, prony, forces, corners, params, relax, out, blk, blk if prony else 0, relax_a, lanes)
     return bad
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
-def _sweep_block(code, prony, forces, p, r, s, out, relax_a, lanes):
-    """One block's lane loop, one compiled copy per (material, Prony, forces): the branches on the constants
-    are resolved before the vectoriser runs. fastmath: only "contract"."""
+def _all_blocks(corners, params, relax, out, code, prony, forces, relax_a):
+    """The lane loops over every block, one compiled copy per (material, Prony, forces): the branches on the
+    constants are resolved before the vectoriser runs. Returns the number of NaN multipliers (sweep only).
+    fastmath: only "contract"."""
+    lanes = corners.shape[1] // N_OUT  # LANES, as a run-time value
+    c, p, r, o, a = corners, params, relax, out, relax_a
     if forces:
         if prony:
             if code == NEO_HOOKEAN:
-                return _lanes(NEO_HOOKEAN, True, True, p, r, s, out, relax_a, lanes)
+                return _blocks(NEO_HOOKEAN, True, True, c, p, r, o, a, lanes)
             if code == ANISOTROPIC_NEO_HOOKEAN:
-                return _lanes(ANISOTROPIC_NEO_HOOKEAN, True, True, p, r, s, out, relax_a, lanes)
+                return _blocks(ANISOTROPIC_NEO_HOOKEAN, True, True, c, p, r, o, a, lanes)
             if code == STABLE_NEO_HOOKEAN:
-                return _lanes(STABLE_NEO_HOOKEAN, True, True, p, r, s, out, relax_a, lanes)
-            return _lanes(STVK, True, True, p, r, s, out, relax_a, lanes)
-        if code == NEO_HOOKEAN:
-            return _lanes(NEO_HOOKEAN, False, True, p, r, s, out, relax_a, lanes)
-        if code == ANISOTROPIC_NEO_HOOKEAN:
-            return _lanes(ANISOTROPIC_NEO_HOOKEAN, False, True, p, r, s, out, relax_a, lanes)
-        if code == STABLE_NEO_HOOKEAN:
-            return _lanes(STABLE_NEO_HOOKEAN, False, True, p, r, s, out, relax_a, lanes)
-        return _lanes(STVK, False, True, p, r, s, out, relax_a, lanes)
-    if prony:
-        if code == NEO_HOOKEAN:
-            return _lanes(NEO_HOOKEAN, True, False, p, r, s, out, relax_a, lanes)
-        if code == ANISOTROPIC_NEO_HOOKEAN:
-            return _lanes(ANISOTROPIC_NEO_HOOKEAN, True, False, p, r, s, out, relax_a, lanes)
-        if code == STABLE_NEO_HOOKEAN:
-            return _lanes(STABLE_NEO_HOOKEAN, True, False, p, r, s, out, relax_a, lanes)
-        return _lanes(STVK, True, False, p, r, s, out, relax_a, lanes)
-    if code == NEO_HOOKEAN:
-        return _lanes(NEO_HOOKEAN, False, False, p, r, s, out, relax_a, lanes)
-    if code == ANISOTROPIC_NEO_HOOKEAN:
-        return _lanes(ANISOTROPIC_NEO_HOOKEAN, False, False, p, r, s, out, relax_a, lanes)
-    if code == STABLE_NEO_HOOKEAN:
-        return _lanes(STABLE_NEO_HOOKEAN, False, False, p, r, s, out, relax_a, lanes)
-    return _lanes(STVK, False, False, p, r, s, out, relax_a, lanes)
+                return _blocks(STABLE_NEO_HOOKEAN, True, True, c, p, r, o, a, lanes)
+            if code == STVK:
+                return _blocks(STVK, True, True, c, p, r, o, a, lanes)
+        if not prony:
+            if code == NEO_HOOKEAN:
+                return _blocks(NEO_HOOKEAN, False, True, c, p, r, o, a, lanes)
+            if code == ANISOTROPIC_NEO_HOOKEAN:
+                return _blocks(ANISOTROPIC_NEO_HOOKEAN, False, True, c, p, r, o, a, lanes)
+            if code == STABLE_NEO_HOOKEAN:
+                return _blocks(STABLE_NEO_HOOKEAN, False, True, c, p, r, o, a, lanes)
+            if code == STVK:
+                return _blocks(STVK, False, True, c, p, r, o, a, lanes)
+    if not forces:
+        if prony:
+            if code == NEO_HOOKEAN:
+                return _blocks(NEO_HOOKEAN, True, False, c, p, r, o, a, lanes)
+            if code == ANISOTROPIC_NEO_HOOKEAN:
+                return _blocks(ANISOTROPIC_NEO_HOOKEAN, True, False, c, p, r, o, a, lanes)
+            if code == STABLE_NEO_HOOKEAN:
+                return _blocks(STABLE_NEO_HOOKEAN, True, False, c, p, r, o, a, lanes)
+            if code == STVK:
+                return _blocks(STVK, True, False, c, p, r, o, a, lanes)
+        if not prony:
+            if code == NEO_HOOKEAN:
+                return _blocks(NEO_HOOKEAN, False, False, c, p, r, o, a, lanes)
+            if code == ANISOTROPIC_NEO_HOOKEAN:
+                return _blocks(ANISOTROPIC_NEO_HOOKEAN, False, False, c, p, r, o, a, lanes)
+            if code == STABLE_NEO_HOOKEAN:
+                return _blocks(STABLE_NEO_HOOKEAN, False, False, c, p, r, o, a, lanes)
+            if code == STVK:
+                return _blocks(STVK, False, False, c, p, r, o, a, lanes)
+    return 0
 
 
 @njit(cache=True)
-def _all_blocks(xf, node_index, params, relax, out, scratch, code, prony, forces, relax_a):
-    """The lane loop over every block; returns the number of NaN multipliers (sweep only)."""
-    bad = 0
-    lanes = scratch.shape[0] // 9  # LANES, as a run-time value
-    for blk in range(node_index.shape[0]):
-        _gather(xf, node_index[blk], scratch)
-        bad += _sweep_block(code, prony, forces, params[blk], relax[blk if prony else 0], scratch, out[blk],
-                            relax_a, lanes)
-    return bad
-
-
-@njit(cache=True)
-def sweeps(x, node_index, params, relax, out, scratch, free_nodes, free_start, free_slot, node_scale, code, prony,
+def sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale, code, prony,
            relax_a, iterations):
     """``iterations`` Jacobi sweeps (5.7-5.9, 5.14) on ``x`` (n, 3) in place: per sweep every block's
     increments into ``out``, then every free node's sum over its incidences (in tet order), scaled by
-    ``node_scale`` and applied. Kinematic nodes have w = 0, so no increment. Returns the number of sweeps
-    done: fewer than ``iterations`` when a multiplier was NaN or a position non-finite."""
-    xf = x.reshape(x.size)
+    ``node_scale``, applied to ``x`` and copied to its corner slots. Kinematic nodes have w = 0, so no
+    increment. Returns the number of sweeps done: fewer than ``iterations`` when a multiplier was NaN or a
+    position non-finite. ``corners`` holds the final positions on return."""
+    load_corners(x, node_index, corners)
     of = out.reshape(out.size)
+    cf = corners.reshape(corners.size)
     for it in range(iterations):
-        bad = _all_blocks(xf, node_index, params, relax, out, scratch, code, prony, False, relax_a)
+        bad = _all_blocks(corners, params, relax, out, code, prony, False, relax_a)
         finite = bad == 0
         for q in range(free_nodes.shape[0]):
             ax = 0.0
             ay = 0.0
             az = 0.0
-            for k in range(free_start[q], free_start[q + 1]):
+            k0 = free_start[q]
+            k1 = free_start[q + 1]
+            for k in range(k0, k1):
                 o = free_slot[k]
                 ax += of[o]
                 ay += of[o + _L]
@@ -291,6 +383,11 @@ def sweeps(x, node_index, params, relax, out, scratch, free_nodes, free_start, f
             x[i, 0] = vx
             x[i, 1] = vy
             x[i, 2] = vz
+            for k in range(k0, k1):
+                o = free_slot[k]
+                cf[o] = vx
+                cf[o + _L] = vy
+                cf[o + _L2] = vz
             if not (abs(vx) < np.inf and abs(vy) < np.inf and abs(vz) < np.inf):
                 finite = False
         if not finite:
@@ -300,13 +397,13 @@ def sweeps(x, node_index, params, relax, out, scratch, free_nodes, free_start, f
 
 @njit(cache=True)
 def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_displacement, group_t0, group_t1,
-         node_index, params, relax, out, scratch, free_nodes, free_start, free_slot, kin_start, kin_slot, node_scale,
+         node_index, params, relax, out, corners, free_nodes, free_start, free_slot, kin_start, kin_slot, node_scale,
          last_load, n_tets, code, prony, relax_a, iterations):
     """One EBM step of length ``h`` ending at time ``t``, from (``x_prev``, ``v_prev``) into (``x``, ``v``):
 
     1. prediction 5.13, ``x = x_prev + h (v_prev + h f_ext w)``, kinematic nodes at their targets
        (``X + fraction(t) displacement`` of their prescribed group, the group ramped linearly from
-       ``group_t0`` to ``group_t1``; ``kin_group`` -1: fixed at X);
+       ``group_t0`` to ``group_t1``; ``kin_group`` -1: fixed at X), as ``Model.kinematic_targets``;
     2. :func:`sweeps`;
     3. velocities ``v = (x - x_prev) / h`` (5.15, our reading);
     4. energy accounting at the new positions: the strain energy, the largest stretch ``|F|_F / sqrt 3`` and
@@ -333,16 +430,15 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
                 frac = min(max((t - t0) / (t1 - t0), 0.0), 1.0)
             for d in range(3):
                 x[i, d] = X[i, d] + frac * kin_displacement[q, d]
-    done = sweeps(x, node_index, params, relax, out, scratch, free_nodes, free_start, free_slot, node_scale, code,
+    done = sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale, code,
                   prony, relax_a, iterations)
     for i in range(n):
         for d in range(3):
             v[i, d] = (x[i, d] - x_prev[i, d]) / h
     if done < iterations:
         return done, 0.0, 0.0, 0.0
-    # accounting: dW/dx, W and |F|^2 per tet at the new positions
-    xf = x.reshape(x.size)
-    _all_blocks(xf, node_index, params, relax, out, scratch, code, prony, True, relax_a)
+    # accounting: dW/dx, W and |F|^2 per tet at the new positions (the corners hold them)
+    _all_blocks(corners, params, relax, out, code, prony, True, relax_a)
     of = out.reshape(out.size)
     strain = 0.0
     FF = 0.0

@@ -75,14 +75,14 @@ _INV_CBRT_MAGIC = (4.0 / 3.0 * 1023.0 - 0.066) * 2.0 ** 52
 @njit(cache=True, inline="always")
 def _inverse_cube_root(J):
     """J^(-1/3) for normal J > 0 (NaN for J <= 0) without a branch or a libm call, so that a loop over
-    lanes vectorises: a seed from the exponent bits (relative error <= 3.4 %), then three steps of
-    ``y <- y (1 + r/3 + 2 r^2 / 9)`` with ``r = 1 - J y^3`` (the series of ``(1 - r)^(-1/3)``, error
-    ~ 14/81 r^3 per step): 3.4e-2 -> 2e-4 -> 2e-11 -> rounding. Measured against 1 / cbrt(J) over
-    J in [1e-260, 1e260]: largest relative difference 3.3e-16, mean 5.6e-17."""
+    lanes vectorises: a seed from the exponent bits (relative error <= 3.4 %), then two steps of
+    ``y <- y (1 + r/3 + 2 r^2/9 + 14 r^3/81)`` with ``r = 1 - J y^3`` (the series of ``(1 - r)^(-1/3)``, error
+    ~ 35/243 r^4 per step): 3.4e-2 -> 2e-5 -> rounding. Measured against 1 / cbrt(J) over J in
+    [1e-260, 1e260]: largest relative difference 2.2e-16, mean 5.3e-17."""
     y = np.int64(_INV_CBRT_MAGIC - np.float64(np.float64(J).view(np.int64)) * (1.0 / 3.0)).view(np.float64)
-    for _ in range(3):
+    for _ in range(2):
         r = 1.0 - J * (y * y * y)
-        y = y + y * r * (1.0 / 3.0 + (2.0 / 9.0) * r)
+        y = y + y * r * (1.0 / 3.0 + r * (2.0 / 9.0 + r * (14.0 / 81.0)))
     return y if J > 0.0 else np.nan
 
 

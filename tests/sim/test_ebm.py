@@ -133,37 +133,57 @@ def test_ebm_anisotropic_cube_deforms_less_along_the_fibre(displacement):
     assert rms_uz["anisotropic_neo_hookean"] < 0.85 * rms_uz["neo_hookean"]
 
 
+def _cube_reactions(name, prony, seed, dt=0.05, steps=100):
+    """Bottom-face x reaction per step of the 5.3.4 cube (top ramped 0.3 m in -x over 0.5 s, then held), 100
+    iterations; ``seed`` > 0 moves the free nodes of the start by ~1e-13 m (rounding level)."""
+    model, bottom = _cube_x(name, -0.3, 0.5, prony)
+    ebm = EBM(model, {"iterations": 100})
+    state = State.at_rest(model)
+    if seed:
+        free = ~model.kinematic_mask()
+        state.x[free] += 1e-13 * np.random.default_rng(seed).normal(size=(int(free.sum()), 3))
+    R = []
+    for _ in range(steps):
+        state = ebm.step(state, dt)
+        R.append(-ebm.nodal_forces(state.x, dt)[bottom, 0].sum())  # x force the cube puts on its base
+    return np.array(R)
+
+
 def test_ebm_viscoelastic_cube_relaxes_and_the_anisotropic_one_pushes_harder():
     """Zhang 5.3.4: alpha_1 = 0.5, tau_1 = 0.58 s; top ramped 0.3 m in -x over 0.5 s, held 4.5 s (4-cell cube,
     384 tets, 100 iterations, dt = 0.05 s). The bottom-face reaction peaks at the end of the ramp, then
-    relaxes towards the long-term modulus: over the last 2 s it is about 1 - alpha_1 = 0.5 of the elastic
-    model's (measured 0.57 / 0.50), and the anisotropic cube's reaction stays above the isotropic one."""
+    relaxes towards the long-term modulus, about 1 - alpha_1 = 0.5 of the elastic model's.
+
+    The EBM reaction fluctuates by about 5 % from step to step (its fixed point is not an equilibrium) and the
+    iteration amplifies rounding (docs/ebm.md): a 1e-13 m perturbation of the start moves one run's
+    anisotropic/isotropic ratio anywhere between 0.91 and 1.11 (measured, every kernel). So the averages are
+    taken over an ensemble of such perturbations; per run only the robust properties are asserted."""
     dt, steps = 0.05, 100
-    reactions = {}
-    for name in ("neo_hookean", "anisotropic_neo_hookean"):
-        for prony in ([(0.5, 0.58)], None):
-            model, bottom = _cube_x(name, -0.3, 0.5, prony)
-            ebm = EBM(model, {"iterations": 100})
-            state = State.at_rest(model)
-            R = []
-            for _ in range(steps):
-                state = ebm.step(state, dt)
-                R.append(-ebm.nodal_forces(state.x, dt)[bottom, 0].sum())  # x force the cube puts on its base
-            reactions[name, prony is not None] = np.array(R)
     t = dt * np.arange(1, steps + 1)
-    hold = t > 3.0
-    for name in ("neo_hookean", "anisotropic_neo_hookean"):
-        visco, elastic = reactions[name, True], reactions[name, False]
-        assert np.isfinite(visco).all() and visco.min() > 0.0
-        assert 0.4 < t[np.argmax(visco)] < 0.8  # the peak at the end of the ramp (0.5 s)
-        assert visco[hold].mean() < 0.7 * visco.max()  # stress relaxation (measured 0.62-0.68 at the end)
-        assert 0.4 < visco[hold].mean() / elastic[hold].mean() < 0.65  # towards (1 - alpha_1) of the elastic one
-    iso, aniso = reactions["neo_hookean", True], reactions["anisotropic_neo_hookean", True]
-    after_ramp = t >= 0.5
-    # the EBM's reaction fluctuates from step to step (the fixed point is not an equilibrium); on average
-    # and in most steps the anisotropic cube pushes harder (measured 1.06x, 89 % of the steps)
-    assert aniso[after_ramp].mean() > 1.02 * iso[after_ramp].mean()
-    assert np.mean(aniso[after_ramp] > iso[after_ramp]) > 0.7
+    hold, after_ramp = t > 3.0, t >= 0.5
+    ratios = {"visco_over_elastic": [], "visco_hold_over_peak": [], "elastic_hold_over_peak": [], "aniso_over_iso": []}
+    for seed in range(16):
+        visco = {}
+        for name in ("neo_hookean", "anisotropic_neo_hookean"):
+            visco[name] = R = _cube_reactions(name, [(0.5, 0.58)], seed, dt, steps)
+            assert np.isfinite(R).all() and R.min() > 0.0
+            assert 0.4 < t[np.argmax(R)] <= 0.8  # the peak at the end of the ramp (0.5 s; measured 0.45-0.8)
+            ratios["visco_hold_over_peak"].append(R[hold].mean() / R.max())
+            if seed < 4:
+                elastic = _cube_reactions(name, None, seed, dt, steps)
+                ratios["elastic_hold_over_peak"].append(elastic[hold].mean() / elastic.max())
+                ratios["visco_over_elastic"].append(R[hold].mean() / elastic[hold].mean())
+        ratios["aniso_over_iso"].append(visco["anisotropic_neo_hookean"][after_ramp].mean()
+                                        / visco["neo_hookean"][after_ramp].mean())
+    mean = {key: float(np.mean(value)) for key, value in ratios.items()}
+    # stress relaxation: measured 0.63-0.65 of the peak over the last 2 s (0.57-0.71 per run); the elastic
+    # model's fluctuating reaction stays at 0.84 of its peak
+    assert mean["visco_hold_over_peak"] < 0.72 < mean["elastic_hold_over_peak"]
+    # towards 1 - alpha_1 = 0.5 of the elastic model's (measured 0.56-0.58 on average, 0.47-0.68 per run)
+    assert 0.45 < mean["visco_over_elastic"] < 0.7
+    # the fibre along z stiffens the sheared cube: the anisotropic reaction is above the isotropic one on average
+    # (measured 1.03-1.04 over 16-run ensembles of both kernels, single runs 0.91-1.11)
+    assert mean["aniso_over_iso"] > 1.0
 
 
 def test_ebm_literal_sum_diverges_and_says_so():
