@@ -56,9 +56,14 @@ def variant(scene, width, height, sampling, samples, ss, pattern="blue_noise", c
 def render(scene):
     plan = make_plan(scene)
     world = build_world(scene, plan, StageRecorder())
-    start = time.perf_counter()
-    result, _ = render_hdr(world, scene, plan, StageRecorder(), 0.0, scene.seed)
-    seconds = time.perf_counter() - start
+    times = []
+    while True:  # a shared machine is noisy: the median of 3 timed renders when one takes under 2 s
+        start = time.perf_counter()
+        result, _ = render_hdr(world, scene, plan, StageRecorder(), 0.0, scene.seed)
+        times.append(time.perf_counter() - start)
+        if times[0] > 2.0 or len(times) == 3:
+            break
+    seconds = float(np.median(times))
     ldr = postfx.apply_chain(result.hdr, result.depth, [("tonemap", Tonemap())],
                              postfx.Lens(scene.camera.fov_deg, scene.width, scene.height), backend="numpy").image
     return result.hdr, ldr, seconds
