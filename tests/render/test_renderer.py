@@ -412,3 +412,15 @@ def test_jittered_supersampling_is_stratified_and_deterministic():
     inner[1:-1, 1:-1] &= full[:-2, 1:-1] & full[2:, 1:-1] & full[1:-1, :-2] & full[1:-1, 2:]
     inner[[0, -1], :] = inner[:, [0, -1]] = False
     assert inner.sum() > 50 and np.all(jittered[inner] == 1.0)
+
+
+def test_jitter_offsets_are_uniform_and_independent():
+    from tissuerender.render.raster import jitter_offset
+
+    uv = np.array([jitter_offset(7, j, i, 200) for j in range(100) for i in range(200)])
+    assert uv.min() >= 0.0 and uv.max() < 1.0
+    assert np.allclose(uv.mean(axis=0), 0.5, atol=0.01) and np.allclose(uv.var(axis=0), 1 / 12, rtol=0.03)
+    assert abs(np.corrcoef(uv[:, 0], uv[:, 1])[0, 1]) < 0.02
+    assert abs(np.corrcoef(uv[:-1, 0], uv[1:, 0])[0, 1]) < 0.02  # neighbouring pixels unrelated
+    hist = np.histogram2d(uv[:, 0], uv[:, 1], bins=4, range=[[0, 1], [0, 1]])[0]
+    assert hist.min() > 0.85 * hist.mean()

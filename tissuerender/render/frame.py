@@ -493,12 +493,9 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
     gbuffer: dict = {}
     with rec.run("raster"):
         P, N, V, T, tri_mat = clip_near(P, N, V, T, tri_mat, camera)
-        jitter = None
-        if ss > 1 and settings.jitter:
-            # each of a pixel's ss x ss samples at a seeded uniform point of its own cell (stratified)
-            rng = np.random.default_rng(np.random.SeedSequence([settings.seed, 0x5A]))
-            jitter = rng.random((H, W, 2))
-        depth, tri_id, bary = rasterize_objects(P, T, camera, W, H, jitter)
+        # with supersampling, each of a pixel's ss x ss samples at a seeded uniform point of its own cell
+        jitter_seed = int(settings.seed) % (1 << 62) if ss > 1 and settings.jitter else -1
+        depth, tri_id, bary = rasterize_objects(P, T, camera, W, H, jitter_seed)
         jj, ii, pos, n, wo, tri = interpolate_gbuffer(P, N, T, tri_id, bary, camera.position)
         mat = tri_mat[tri]
         albedo = np.array([o.diffuse_albedo for o in optics], float).reshape(-1, 3)[mat]

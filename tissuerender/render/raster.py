@@ -25,16 +25,48 @@ def rasterize(sx, sy, zv, tris, width, height, near, depth, tri_id, bary, bands=
     (weights ``b_i / z_i`` renormalised). Triangles with a vertex in front of ``near`` are skipped.
     The image is split into horizontal bands rasterised in parallel; each band visits the triangles in
     the same order, so every pixel gets the same result as a serial raster (ties keep the first).
-    ``jitter`` (H, W, 2) moves each pixel's sample from the centre to ``(i, j) + jitter`` (offsets in
-    [0, 1)); None samples the centres.
+    ``jitter`` (H, W, 2) moves each pixel's sample from the centre to ``(i, j) + jitter[j, i]`` (offsets
+    in [0, 1), ``jitter_offsets``); None samples the centres.
     """
     jittered = jitter is not None
-    offsets = jitter if jitter is not None else np.full((1, 1, 2), 0.5)
+    offsets = jitter if jitter is not None else np.full((1, 1, 2), 0.5, np.float32)
     bands = max(1, min(height, bands))
     for band in prange(bands):
         row0 = band * height // bands
         row1 = (band + 1) * height // bands - 1
         _raster_rows(sx, sy, zv, tris, width, row0, row1, near, depth, tri_id, bary, jittered, offsets)
+
+
+@njit(cache=True, inline="always")
+def _mix64(z):
+    """splitmix64's finaliser (Steele, Lea & Flood 2014): a well-mixed 64-bit hash of a counter."""
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@njit(cache=True)
+def jitter_offset(seed, j, i, width):
+    """Uniform (u, v) in [0, 1)^2 for pixel (j, i), from 24-bit fields of one 64-bit hash."""
+    h = _mix64(np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(j * width + i) + np.uint64(1))
+    return ((h >> np.uint64(40)) & np.uint64(0xFFFFFF)) / 16777216.0, ((h >> np.uint64(16)) & np.uint64(0xFFFFFF)) / 16777216.0
+
+
+@njit(cache=True, parallel=True)
+def _fill_jitter(seed, out):
+    w = out.shape[1]
+    for j in prange(out.shape[0]):
+        for i in range(w):
+            u, v = jitter_offset(seed, j, i, w)
+            out[j, i, 0] = u
+            out[j, i, 1] = v
+
+
+def jitter_offsets(seed: int, height: int, width: int) -> np.ndarray:
+    """(H, W, 2) float32 sample offsets in [0, 1)^2, one per pixel, from a hash of the seed and pixel."""
+    out = np.empty((height, width, 2), np.float32)
+    _fill_jitter(int(seed) % (1 << 62), out)
+    return out
 
 
 @njit(cache=True)
@@ -94,16 +126,18 @@ def project(points: np.ndarray, camera, width: int, height: int):
     return sx, sy, zv
 
 
-def rasterize_objects(points: np.ndarray, triangles: np.ndarray, camera, width: int, height: int, jitter=None):
+def rasterize_objects(points: np.ndarray, triangles: np.ndarray, camera, width: int, height: int,
+                      jitter_seed: int = -1):
     """(depth (H, W) view depth or inf, triangle id (H, W) or -1, perspective-correct barycentrics (H, W, 3));
-    ``jitter`` (H, W, 2): per-pixel sample offsets in [0, 1) (None: pixel centres)."""
+    ``jitter_seed`` >= 0: each pixel samples a seeded uniform point of itself (-1: pixel centres)."""
+    jitter = jitter_offsets(jitter_seed, height, width) if jitter_seed >= 0 else None
     sx, sy, zv = project(points, camera, width, height)
     depth = np.full((height, width), np.inf)
     tri_id = np.full((height, width), -1, np.int64)
     bary = np.zeros((height, width, 3))
     if triangles.shape[0]:
         rasterize(sx, sy, zv, triangles, width, height, float(camera.near), depth, tri_id, bary,
-                  4 * numba.get_num_threads(), None if jitter is None else np.ascontiguousarray(jitter, np.float64))
+                  4 * numba.get_num_threads(), jitter)
     far = depth > camera.far
     depth[far], tri_id[far] = np.inf, -1
     return depth, tri_id, bary
