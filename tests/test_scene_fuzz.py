@@ -50,7 +50,7 @@ def _mutate(data, draw):
         else:
             container[f"{key}_copy"] = copy.deepcopy(value)
     elif op == "retype":
-        container[key] = draw(st.sampled_from(REPLACEMENTS))
+        container[key] = copy.deepcopy(draw(st.sampled_from(REPLACEMENTS)))  # never share (or nest) the list itself
     elif op == "rename" and isinstance(container, dict):
         container[str(key)[::-1] or "k"] = container.pop(key)
     elif op == "scale":
