@@ -25,9 +25,11 @@ The relative energy difference ``RED = |W_ext - W_strain| / W_ext`` is recorded 
 ``red_history``: W_ext is the work done on the body by the reactions at prescribed nodes and by
 external forces (trapezoidal in time), W_strain the stored strain energy.
 Settings: ``iterations`` (default 100), ``substeps``, ``update`` ("average" | "sum"), ``kernel``
-("numba", default: the scalar per-tet kernels of ``sim.ebm_kernels``; "numpy": the vectorised NumPy
-reference below, which the tests compare the kernels against to 1e-10). Valanis–Landel materials
-always take the NumPy path (their curves are not compiled).
+("blocked", default: each substep in one compiled call with the per-tet work vectorised across tets,
+``sim.ebm_blocked``; "numba": the scalar per-tet kernels of ``sim.ebm_kernels``, which the blocked kernel is
+tested against to 1e-10; "numpy": the vectorised NumPy reference below, which the scalar kernels are
+tested against to 1e-10). Valanis–Landel materials always take the NumPy path (their curves are not
+compiled).
 """
 from __future__ import annotations
 
