@@ -97,16 +97,18 @@ uint hash32(uint x) {
   return x;
 }
 float unit24(uint x) { return (float(x >> 8) + 0.5) * (1.0 / 16777216.0); }
-float normal(uint n, uint key) {
-  uint m2 = n & ~1u;
+// values m2 and m2 + 1 (m2 even): one Box-Muller pair
+vec2 normal_pair(uint m2, uint key) {
   float r = sqrt(-2.0 * log(unit24(hash32(hash32(m2) ^ key))));
   float angle = 6.2831853071795865 * unit24(hash32(hash32(m2 + 1u) ^ key));
-  return (n & 1u) == 0u ? r * cos(angle) : r * sin(angle);
+  return vec2(r * cos(angle), r * sin(angle));
 }
 vec3 fx_sensor_noise(vec3 x, ivec2 p, ivec2 size) {
   uint key = uint(noise_key);  // the uint32 key passed through a signed uniform, same bits
   uint n = uint(p.y * size.x + p.x) * 3u;
-  vec3 z = vec3(normal(n, key), normal(n + 1u, key), normal(n + 2u, key));
+  // the pixel's values n, n + 1, n + 2 lie in two pairs (two logarithms, not three)
+  vec2 a = normal_pair(n & ~1u, key), b = normal_pair((n & ~1u) + 2u, key);
+  vec3 z = (n & 1u) == 0u ? vec3(a, b.x) : vec3(a.y, b);
   vec3 sd = sqrt(max(x, 0.0) * noise_shot + noise_rd * noise_rd);
   return max(x + sd * z, 0.0);
 }
@@ -131,12 +133,13 @@ vec3 fx_tonemap(vec3 x, ivec2 p, ivec2 size) {
     "color_grade": """uniform sampler2D cg_lut;
 uniform float cg_saturation;
 uniform vec3 cg_luma;
+// cg_lut: row c holds channel c, texel k the entries k and k + 1 (one fetch per channel, not two)
 float lookup(float x, int c) {
   int n = textureSize(cg_lut, 0).x;
   float f = clamp(x, 0.0, 1.0) * float(n - 1);
   int k = min(int(f), n - 2);
-  float a = texture(cg_lut, vec2((float(k) + 0.5) / float(n), 0.5))[c];  // texel k (nearest, at its centre)
-  return a + (f - float(k)) * (texture(cg_lut, vec2((float(k) + 1.5) / float(n), 0.5))[c] - a);
+  vec2 ab = texture(cg_lut, vec2((float(k) + 0.5) / float(n), (float(c) + 0.5) / 3.0)).rg;  // texel (k, c) at its centre
+  return ab.x + (f - float(k)) * (ab.y - ab.x);
 }
 vec3 fx_color_grade(vec3 x, ivec2 p, ivec2 size) {
   vec3 y = vec3(lookup(x.r, 0), lookup(x.g, 1), lookup(x.b, 2));
@@ -166,26 +169,38 @@ vec3 fx_laparoscope_mask(vec3 x, ivec2 p, ivec2 size) {
 GAUSS_BLOCK = 4  # outputs per fragment along the pass direction (one draw buffer each)
 
 
-def _gauss_taps(kind: str, R: int) -> str:
-    """Unrolled taps for GAUSS_BLOCK outputs from GAUSS_BLOCK + 2R fetches: each texel fetched once is
-    added to every output it is a tap of, output b summing its taps k = 0 .. 2R in order from zero
-    in float32 with the weights of effects.gaussian_weights (as the numba passes: the same sums)."""
+def _gauss_taps(kind: str, R: int, block: int = GAUSS_BLOCK) -> str:
+    """Unrolled taps for ``block`` outputs from block + 2R fetches: each texel fetched once is added to
+    every output it is a tap of, output b summing its taps k = 0 .. 2R in order from zero in float32
+    with the weights of effects.gaussian_weights (as the numba passes: the same sums). Leaves the sums
+    in a0 .. a{block - 1}."""
     lines = []
-    for j in range(GAUSS_BLOCK + 2 * R):
+    for j in range(block + 2 * R):
         lines.append(f"  t = {kind}({j - R});")
-        lines += [f"  a{b} += wts[{j - b}] * t;" for b in range(GAUSS_BLOCK) if 0 <= j - b <= 2 * R]
-    decl = "".join(f"  vec3 a{b} = vec3(0.0);\n" for b in range(GAUSS_BLOCK))
-    out = "".join(f"  gl_FragData[{b}] = vec4(a{b}, 1.0);\n" for b in range(GAUSS_BLOCK))
-    return decl + "  vec3 t;\n" + "\n".join(lines) + "\n" + out
+        lines += [f"  a{b} += wts[{j - b}] * t;" for b in range(block) if 0 <= j - b <= 2 * R]
+    decl = "".join(f"  vec3 a{b} = vec3(0.0);\n" for b in range(block))
+    return decl + "  vec3 t;\n" + "\n".join(lines) + "\n"
+
+
+def _gauss_writes() -> str:
+    return "".join(f"  gl_FragData[{b}] = vec4(a{b}, 1.0);\n" for b in range(GAUSS_BLOCK))
+
+
+# Up to this radius the vertical pass computes one output per fragment (2R + 1 fetches from the blocked
+# rows) and writes the image itself, with the unsharp mask and any fused pointwise effects: at R = 3
+# (sigma 1) blocked rows + this pass took 8.4 ms at 640x480 where blocked rows + blocked columns +
+# reassembly took 9.9; at R = 9 the blocked columns stay faster (14.4 vs 16.9 ms).
+GAUSS_PLAIN_V = 3
 
 
 @functools.lru_cache(maxsize=None)
 def gauss_passes(R: int) -> tuple[str, str]:
     """The two passes of a Gaussian of radius R (2R + 1 taps, edges clamped by the clamp-to-edge wrap):
     horizontal, from an image into blocks of GAUSS_BLOCK columns (a 3D target, layer = column mod
-    block), then vertical, from those into blocks of GAUSS_BLOCK rows; ``gauss_unpack`` reassembles.
-    Registered in SHADERS under the returned names."""
-    horizontal, vertical = f"gauss_h{R}", f"gauss_v{R}"
+    block), then vertical from those: for R <= GAUSS_PLAIN_V one output per fragment straight into the
+    image (``gauss_vp<R>``, ``gauss_vp<R>u`` with the unsharp mask; pointwise epilogue), else blocks of GAUSS_BLOCK
+    rows that ``gauss_unpack`` reassembles. Registered in SHADERS under the returned names."""
+    horizontal, vertical = f"gauss_h{R}", (f"gauss_vp{R}" if R <= GAUSS_PLAIN_V else f"gauss_v{R}")
     SHADERS[horizontal] = _HEADER + f"""uniform sampler2D img;
 uniform float wts[{2 * R + 1}];
 uniform ivec2 blocks;
@@ -195,8 +210,25 @@ void main() {{
   int x0 = b.x * {GAUSS_BLOCK};
   float v = (float(b.y) + 0.5) * inv.y;
 #define tap(d) texture(img, vec2((float(x0 + d) + 0.5) * inv.x, v)).rgb
-{_gauss_taps("tap", R)}}}
+{_gauss_taps("tap", R)}{_gauss_writes()}}}
 """
+    if R <= GAUSS_PLAIN_V:
+        unsharp = "  vec3 x = texture(orig, texCoord).rgb;\n  a0 = clamp(x + amount * (x - a0), 0.0, 1.0);\n"
+        for name, orig in ((vertical, ""), (vertical + "u", "uniform sampler2D orig;\nuniform float amount;\n")):
+            SHADERS[name] = _HEADER + orig + f"""uniform sampler3D rows;
+uniform float wts[{2 * R + 1}];
+uniform ivec2 size;
+//EPILOGUE::Dec
+void main() {{
+  ivec2 p = ivec2(texCoord * vec2(size));
+  vec3 rs = vec3(textureSize(rows, 0));
+  float u = (float(p.x / {GAUSS_BLOCK}) + 0.5) / rs.x;
+  float layer = (float(p.x % {GAUSS_BLOCK}) + 0.5) / rs.z;
+#define tap(d) texture(rows, vec3(u, (float(p.y + d) + 0.5) / rs.y, layer)).rgb
+{_gauss_taps("tap", R, 1)}{unsharp if orig else ""}  gl_FragData[0] = vec4(post(a0, p, size), 1.0);
+}}
+"""
+        return horizontal, vertical
     SHADERS[vertical] = _HEADER + f"""uniform sampler3D rows;
 uniform float wts[{2 * R + 1}];
 uniform ivec2 blocks;
@@ -207,30 +239,40 @@ void main() {{
   float layer = (float(b.x % {GAUSS_BLOCK}) + 0.5) / size.z;
   int y0 = b.y * {GAUSS_BLOCK};
 #define tap(d) texture(rows, vec3(u, (float(y0 + d) + 0.5) / size.y, layer)).rgb
-{_gauss_taps("tap", R)}}}
+{_gauss_taps("tap", R)}{_gauss_writes()}}}
 """
     return horizontal, vertical
 
 
 # -- depth of field ------------------------------------------------------------------------------------
-DOF_BLOCK = (4, 2)  # output pixels per gather fragment (columns, rows): 8 = the draw buffers every GL 3+ has
+DOF_BLOCK = (4, 4)  # output pixels per gather fragment (columns, rows), each written with imageStore
 DOF_TILE = 16  # side of the square tiles whose reach bounds the gather loops (a multiple of both block sides)
+
+# a pass that also writes images (imageStore): GLSL 1.50 plus the extension (core in GL 4.2)
+_IMAGE_HEADER = _HEADER.replace("//VTK::System::Dec",
+                                "//VTK::System::Dec\n#extension GL_ARB_shader_image_load_store : require")
 
 
 def _dof_gather(kx: int, ky: int) -> str:
     """Scatter-as-gather over a block of kx x ky outputs: each source texel fetched once is tested against
-    the block's outputs (the fetch, not the test, is what llvmpipe pays most for). Output (x, y) of the
-    block goes to draw buffer y kx + x, a layer of a 3D target that ``dof_unpack`` reads back."""
+    the block's outputs (the fetch, not the test, is what llvmpipe pays most for). Each output goes
+    straight into the image ``dof_out`` with imageStore, after the pointwise epilogue (``post()``): no
+    draw-buffer limit on the block (4 x 4: 16 outputs, where draw buffers allow 8) and no pass to
+    reassemble the blocks. The fragment's own colour output is a dummy."""
     acc = "\n".join(f"  vec4 a{x}_{y} = vec4(0.0);" for y in range(ky) for x in range(kx))
     rows = "\n".join(f"      float t{y} = s.a - float((dj - {y}) * (dj - {y}));" for y in range(ky))
     tests = "\n".join(f"      a{x}_{y} += float((di - {x}) * (di - {x})) <= t{y} ? v : vec4(0.0);"
                       for y in range(ky) for x in range(kx))
-    writes = "\n".join(f"  gl_FragData[{y * kx + x}] = vec4(a{x}_{y}.rgb / a{x}_{y}.a, 1.0);"
+    writes = "\n".join(f"  if (o.x + {x} < size.x && o.y + {y} < size.y) imageStore(dof_out, o + ivec2({x}, {y}), "
+                       f"vec4(post(a{x}_{y}.rgb / a{x}_{y}.a, o + ivec2({x}, {y}), size), 1.0));"
                        for y in range(ky) for x in range(kx))
-    return _HEADER + f"""uniform sampler2D src;
+    return _IMAGE_HEADER + f"""uniform sampler2D src;
 uniform sampler2D tiles;
 uniform ivec2 blocks;
+uniform ivec2 size;
 uniform int pad;
+layout(rgba32f) writeonly uniform image2D dof_out;
+//EPILOGUE::Dec
 void main() {{
   ivec2 b = ivec2(texCoord * vec2(blocks));
   ivec2 o = b * ivec2({kx}, {ky});
@@ -253,16 +295,19 @@ void main() {{
     }}
   }}
 {writes}
+  gl_FragData[0] = vec4(0.0);
 }}
 """
 
 
 SHADERS = {
+    # texture() at texCoord (the fragment's own texel centre, the viewport being the image's size) reads
+    # the same texel as texelFetch(img, p, 0), a third faster on llvmpipe (a copy 1.7 vs 2.2 ms at 640x480)
     "copy": _HEADER + "uniform sampler2D img;\n//EPILOGUE::Dec\nvoid main() {\n" + _PIXEL
-    + "  gl_FragData[0] = vec4(post(texelFetch(img, p, 0).rgb, p, size), 1.0);\n}\n",
+    + "  gl_FragData[0] = vec4(post(texture(img, texCoord).rgb, p, size), 1.0);\n}\n",
     # a run of pointwise effects on their own (the first effect of a chain, or fusion switched off)
     "pointwise": _HEADER + "uniform sampler2D img;\n//EPILOGUE::Dec\nvoid main() {\n" + _PIXEL
-    + "  gl_FragData[0] = vec4(post(texelFetch(img, p, 0).rgb, p, size), 1.0);\n}\n",
+    + "  gl_FragData[0] = vec4(post(texture(img, texCoord).rgb, p, size), 1.0);\n}\n",
     "chromatic_aberration": _HEADER + "uniform sampler2D img;\nuniform vec3 scale;\nuniform vec2 centre;\n"
     "//EPILOGUE::Dec\n" + _BILINEAR + """
 void main() {
@@ -274,22 +319,20 @@ void main() {
   gl_FragData[0] = vec4(post(rgb, p, size), 1.0);
 }
 """,
-    # the separable Gaussian's blocks back to one image (gauss_passes); mode 1: the unsharp mask
-    # x + amount (x - blur) clipped, x from `orig` (which gives the size in either mode)
-    "gauss_unpack": _HEADER + "uniform sampler3D blocks;\nuniform sampler2D orig;\nuniform int mode;\n"
-    "uniform float amount;\n//EPILOGUE::Dec\n" + f"""
+    # the separable Gaussian's blocks back to one image (gauss_passes); "gauss_unpack_sharpen": the unsharp
+    # mask x + amount (x - blur) clipped, x from `orig`. Two shaders, not a uniform switch: llvmpipe runs
+    # both sides of a branch on a uniform, and the blur would pay the fetch of `orig` (about 1.5 ms)
+    **{name: _HEADER + "uniform sampler3D blocks;\nuniform ivec2 size;\n" + orig + "//EPILOGUE::Dec\n" + f"""
 void main() {{
-  ivec2 size = textureSize(orig, 0);
   ivec2 p = ivec2(texCoord * vec2(size));
   vec3 at = (vec3(p.x, p.y / {GAUSS_BLOCK}, p.y % {GAUSS_BLOCK}) + 0.5) / vec3(textureSize(blocks, 0));
   vec3 acc = texture(blocks, at).rgb;
-  if (mode == 1) {{
-    vec3 x = texture(orig, (vec2(p) + 0.5) / vec2(size)).rgb;
-    acc = clamp(x + amount * (x - acc), 0.0, 1.0);
-  }}
-  gl_FragData[0] = vec4(post(acc, p, size), 1.0);
+{unsharp}  gl_FragData[0] = vec4(post(acc, p, size), 1.0);
 }}
-""",
+""" for name, orig, unsharp in (
+        ("gauss_unpack", "", ""),
+        ("gauss_unpack_sharpen", "uniform sampler2D orig;\nuniform float amount;\n",
+         "  vec3 x = texture(orig, texCoord).rgb;\n  acc = clamp(x + amount * (x - acc), 0.0, 1.0);\n"))},
     # half resolution: the 2x2 mean of the part above threshold in luminance (effects._bright_half)
     "bright_half": _HEADER + "uniform sampler2D img;\nuniform float threshold;\nuniform vec3 luma;\n"
     "uniform ivec2 out_size;\nuniform int use_threshold;\n" + """
@@ -317,7 +360,7 @@ void main() {
 void main() {
 """ + _PIXEL + """  float x = (float(p.x) + 0.5) * 0.5, y = (float(p.y) + 0.5) * 0.5;
   vec3 up = bilinear3(low, x, y);
-  gl_FragData[0] = vec4(post(texelFetch(img, p, 0).rgb + k * up, p, size), 1.0);
+  gl_FragData[0] = vec4(post(texture(img, texCoord).rgb + k * up, p, size), 1.0);
 }
 """,
     # the DoF source, padded by `pad` texels of reach -1 (never inside a disc) so that the gather needs
@@ -336,17 +379,6 @@ void main() {
 }
 """,
     "dof_gather": _dof_gather(*DOF_BLOCK),
-    # the gather's blocks back to one image: pixel p is layer (p mod block) of block p / block
-    "dof_unpack": _HEADER + "uniform sampler3D blocks;\nuniform ivec2 out_size;\n//EPILOGUE::Dec\n" + f"""
-void main() {{
-  ivec2 size = out_size;
-  ivec2 p = ivec2(texCoord * vec2(out_size));
-  ivec2 b = p / ivec2({DOF_BLOCK[0]}, {DOF_BLOCK[1]});
-  ivec2 k = p - b * ivec2({DOF_BLOCK[0]}, {DOF_BLOCK[1]});
-  vec3 at = (vec3(b, k.y * {DOF_BLOCK[0]} + k.x) + 0.5) / vec3(textureSize(blocks, 0));
-  gl_FragData[0] = vec4(post(texture(blocks, at).rgb, p, size), 1.0);
-}}
-""",
     # lens flare ghosts and halo at half resolution (lens_flare._features); ghosts (s, r, g, b)
 }
 

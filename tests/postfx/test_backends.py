@@ -84,7 +84,7 @@ def test_missing_osmesa_names_the_package_and_auto_falls_back(monkeypatch):
 @pytest.mark.osmesa
 @pytest.mark.parametrize("shape", [(23, 37), (70, 90)])
 def test_blocked_dof_gather_matches_numpy_on_odd_sizes_and_random_coc(shape):
-    """Partial 4x2 blocks and 16 px tiles at the image edge, every pixel with its own CoC (up to 6 px)."""
+    """Partial 4x4 blocks and 16 px tiles at the image edge, every pixel with its own CoC (up to 6 px)."""
     rng = np.random.default_rng(3)
     h, w = shape
     hdr = (rng.random((h, w, 3)) * 4.0).astype(np.float32)
@@ -172,3 +172,46 @@ def test_a_repeated_pointwise_effect_starts_a_new_pass():
     ref = postfx.apply_chain(hdr, depth, chain, LENS, backend="numpy").image
     gpu = postfx.apply_chain(hdr, depth, chain, LENS, backend="osmesa").image
     assert np.abs(ref - gpu).max() < 1e-5
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_osmesa_reach2_kernel_equals_numpy_to_the_bit(dtype):
+    """osmesa.coc_reach2 (one numba loop) selects the gather's taps: it must give the very float32
+    reach2 of effects.dof_reach2(effects.coc_radius_px(...)), special depths included, and the tile maxima."""
+    rng = np.random.default_rng(13)
+    h, w = 37, 53  # partial tiles on both axes
+    depth = (rng.random((h, w)) * 0.4 - 0.02).astype(dtype)  # some at or behind the camera
+    depth.flat[:6] = [np.inf, -np.inf, np.nan, 0.0, 0.1, 1e-12]
+    for p, fov in ((DepthOfField(focus_distance=0.1, aperture=0.002, max_radius_px=8.0), 70.0),
+                   (DepthOfField(focus_distance=0.0047, aperture=0.003, focal_length=0.0045, max_radius_px=64.0), 30.0),
+                   (DepthOfField(), 75.0)):
+        ref = effects.dof_reach2(effects.coc_radius_px(depth, p, fov, w))
+        reach2, tiles = osmesa.coc_reach2(depth, p, fov, w)
+        assert reach2.dtype == np.float32 and np.array_equal(reach2.view(np.uint32), ref.view(np.uint32))
+        padded = np.full((48, 64), -1.0, np.float32)
+        padded[:h, :w] = ref
+        assert np.array_equal(tiles, padded.reshape(3, 16, 4, 16).max(axis=(1, 3)))
+        assert np.array_equal(osmesa.dilate_tiles(tiles, float(ref.max())), osmesa.dof_tiles(ref))
+
+
+@needs_osmesa
+@pytest.mark.osmesa
+def test_dof_after_another_effect_builds_its_source_on_the_gl_side():
+    """The first effect of a chain reads the frame from the CPU (the DoF then builds its padded source
+    there); a DoF later in the chain draws the source pass from a texture. Both agree with NumPy on the
+    linear HDR result (before any clipping)."""
+    hdr, depth = _inputs()
+    p = CASES["depth_of_field"]
+    for chain in ([("depth_of_field", p)], [("blur", CASES["blur"]), ("depth_of_field", p)]):
+        ref = hdr
+        for name, params in chain:
+            ref = postfx.apply_effect(name, ref, depth, params, LENS)
+        gpu, _, _ = osmesa.run_chain(hdr, depth, chain, LENS)
+        assert np.abs(gpu - ref).max() <= 1e-5 * float(np.abs(ref).max())
+    chain = [("depth_of_field", p), ("tonemap", CASES["tonemap"]), ("laparoscope_mask", CASES["laparoscope_mask"])]
+    fused, seconds, _ = osmesa.run_chain(hdr, depth, chain, LENS)  # the pointwise run drawn inside the gather
+    assert list(seconds) == ["depth_of_field+tonemap+laparoscope_mask"]
+    separate, _, _ = osmesa.run_chain(hdr, depth, chain, LENS, fuse=False)
+    assert np.abs(fused - separate).max() <= 1e-6
+    ref = postfx.apply_chain(hdr, depth, chain, LENS, backend="numpy").image
+    assert np.abs(np.clip(fused, 0.0, 1.0) - ref).max() <= 1e-5
