@@ -249,9 +249,9 @@ class EBM:
         if self.kernel == "blocked":
             x = np.ascontiguousarray(x, dtype=np.float64)
             prony, (a, _, _) = self._relaxation(h)
-            done = ebm_blocked.sweeps(x, self._node_index, self._params, self._relax_blocks, self._out, self._corners,
-                                      self._free_nodes, self._free_start, self._free_slot, self._node_scale,
-                                      self._code, prony, a, self.iterations)
+            _, sweeps = ebm_blocked.variant(self._code, prony)
+            done = sweeps(x, self._node_index, self._params, self._relax_blocks, self._out, self._corners,
+                          self._free_nodes, self._free_start, self._free_slot, self._node_scale, a, self.iterations)
             if done < self.iterations:
                 raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
             return x
@@ -312,12 +312,13 @@ class EBM:
             x, v = np.empty_like(x_old), np.empty_like(x_old)
             t += h
             prony, (a, _, _) = self._relaxation(h)
-            done, work, strain, stretch = ebm_blocked.step(
+            step, _ = ebm_blocked.variant(self._code, prony)  # compiled for this material and Prony only
+            done, work, strain, stretch = step(
                 x_old, v_old, x, v, t, h, self._X, self._f_ext, self._w, self._kin_nodes, self._kin_group,
                 self._kin_displacement, self._group_t0, self._group_t1, self._node_index, self._params,
                 self._relax_blocks, self._out, self._corners, self._free_nodes, self._free_start, self._free_slot,
-                self._kin_start, self._kin_slot, self._node_scale, self._last_load_force, self.model.n_tets,
-                self._code, prony, a, self.iterations)
+                self._kin_start, self._kin_slot, self._node_scale, self._last_load_force, self.model.n_tets, a,
+                self.iterations)
             if done < self.iterations:
                 raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
             self.work_in += work

@@ -36,7 +36,9 @@ no reassociation and no finite-math assumption, so the NaN checks keep working) 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import literally, njit, types
+from numba.core.errors import TypingError
+from numba.extending import overload
 
 from sim.ebm_kernels import (ANISOTROPIC_NEO_HOOKEAN, NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK, _energy_piola_root,
                              _inverse_cube_root)
@@ -302,52 +304,30 @@ def _blocks(code, prony, forces, corners, params, relax, out, relax_a, lanes):
     return bad
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
 def _all_blocks(corners, params, relax, out, code, prony, forces, relax_a):
-    """The lane loops over every block, one compiled copy per (material, Prony, forces): the branches on the
-    constants are resolved before the vectoriser runs. Returns the number of NaN multipliers (sweep only).
+    """The lane loops over every block for one (material ``code``, ``prony``, ``forces``); returns the number of
+    NaN multipliers (sweep only). Compiled code only: ``code``, ``prony`` and ``forces`` must be compile-time
+    constants (literals) at the call, so that a caller compiles the one variant it uses (see the overload)."""
+    raise NotImplementedError("sim.ebm_blocked._all_blocks runs in compiled code only")
+
+
+@overload(_all_blocks, prefer_literal=True, jit_options={"error_model": "numpy", "fastmath": {"contract"}})
+def _all_blocks_variant(corners, params, relax, out, code, prony, forces, relax_a):
+    """One implementation per (material, Prony, forces), the three as literal types: the branches on them are
+    resolved before the vectoriser runs, and a run compiles only the lane loops of the variants it calls (the
+    earlier single function with all 16 inlined loops took ~7 minutes to compile on first use).
     fastmath: only "contract"."""
-    lanes = corners.shape[1] // N_OUT  # LANES, as a run-time value
-    c, p, r, o, a = corners, params, relax, out, relax_a
-    if forces:
-        if prony:
-            if code == NEO_HOOKEAN:
-                return _blocks(NEO_HOOKEAN, True, True, c, p, r, o, a, lanes)
-            if code == ANISOTROPIC_NEO_HOOKEAN:
-                return _blocks(ANISOTROPIC_NEO_HOOKEAN, True, True, c, p, r, o, a, lanes)
-            if code == STABLE_NEO_HOOKEAN:
-                return _blocks(STABLE_NEO_HOOKEAN, True, True, c, p, r, o, a, lanes)
-            if code == STVK:
-                return _blocks(STVK, True, True, c, p, r, o, a, lanes)
-        if not prony:
-            if code == NEO_HOOKEAN:
-                return _blocks(NEO_HOOKEAN, False, True, c, p, r, o, a, lanes)
-            if code == ANISOTROPIC_NEO_HOOKEAN:
-                return _blocks(ANISOTROPIC_NEO_HOOKEAN, False, True, c, p, r, o, a, lanes)
-            if code == STABLE_NEO_HOOKEAN:
-                return _blocks(STABLE_NEO_HOOKEAN, False, True, c, p, r, o, a, lanes)
-            if code == STVK:
-                return _blocks(STVK, False, True, c, p, r, o, a, lanes)
-    if not forces:
-        if prony:
-            if code == NEO_HOOKEAN:
-                return _blocks(NEO_HOOKEAN, True, False, c, p, r, o, a, lanes)
-            if code == ANISOTROPIC_NEO_HOOKEAN:
-                return _blocks(ANISOTROPIC_NEO_HOOKEAN, True, False, c, p, r, o, a, lanes)
-            if code == STABLE_NEO_HOOKEAN:
-                return _blocks(STABLE_NEO_HOOKEAN, True, False, c, p, r, o, a, lanes)
-            if code == STVK:
-                return _blocks(STVK, True, False, c, p, r, o, a, lanes)
-        if not prony:
-            if code == NEO_HOOKEAN:
-                return _blocks(NEO_HOOKEAN, False, False, c, p, r, o, a, lanes)
-            if code == ANISOTROPIC_NEO_HOOKEAN:
-                return _blocks(ANISOTROPIC_NEO_HOOKEAN, False, False, c, p, r, o, a, lanes)
-            if code == STABLE_NEO_HOOKEAN:
-                return _blocks(STABLE_NEO_HOOKEAN, False, False, c, p, r, o, a, lanes)
-            if code == STVK:
-                return _blocks(STVK, False, False, c, p, r, o, a, lanes)
-    return 0
+    if not all(isinstance(a, types.Literal) for a in (code, prony, forces)):
+        return None  # numba retries with the arguments as literals (prefer_literal)
+    c, pr, fo = int(code.literal_value), bool(prony.literal_value), bool(forces.literal_value)
+    if c not in (NEO_HOOKEAN, ANISOTROPIC_NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK):
+        raise TypingError(f"sim.ebm_blocked: no blocked kernel for material code {c}")
+
+    def impl(corners, params, relax, out, code, prony, forces, relax_a):
+        lanes = corners.shape[1] // N_OUT  # LANES, as a run-time value
+        return _blocks(c, pr, fo, corners, params, relax, out, relax_a, lanes)
+
+    return impl
 
 
 @njit(cache=True)
@@ -357,7 +337,10 @@ def sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, f
     increments into ``out``, then every free node's sum over its incidences (in tet order), scaled by
     ``node_scale``, applied to ``x`` and copied to its corner slots. Kinematic nodes have w = 0, so no
     increment. Returns the number of sweeps done: fewer than ``iterations`` when a multiplier was NaN or a
-    position non-finite. ``corners`` holds the final positions on return."""
+    position non-finite. ``corners`` holds the final positions on return. ``code`` and ``prony`` are compiled
+    as literals: one specialisation per (material, Prony) in use."""
+    literally(code)
+    literally(prony)
     load_corners(x, node_index, corners)
     of = out.reshape(out.size)
     cf = corners.reshape(corners.size)
@@ -410,7 +393,10 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
        the work increment of the loads (external forces, plus the reactions ``-f_int`` at kinematic nodes),
        trapezoidal with ``last_load`` (updated in place).
 
-    Returns ``(sweeps done, work increment [J], strain energy [J], largest stretch)``."""
+    Returns ``(sweeps done, work increment [J], strain energy [J], largest stretch)``. ``code`` and ``prony`` are
+    compiled as literals (one specialisation per material and Prony in use)."""
+    literally(code)
+    literally(prony)
     n = x.shape[0]
     for i in range(n):
         for d in range(3):
@@ -472,3 +458,37 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
         last_load[i, 1] = ly
         last_load[i, 2] = lz
     return done, 0.5 * work, strain, np.sqrt(FF / 3.0)
+
+
+_VARIANTS: dict = {}
+
+
+def variant(code, prony):
+    """``(step, sweeps)`` for one material ``code`` and ``prony`` flag: :func:`step` and :func:`sweeps` without
+    their ``code`` and ``prony`` arguments, compiled (on first use, cached on disk) for that combination only.
+
+    ``step`` and ``sweeps`` take ``code`` and ``prony`` as literals (``numba.literally``): called from Python with
+    plain values, every call would go through the literal re-dispatch (~0.1 s); these wrappers pass them as
+    compile-time constants, so a call costs what an ordinary compiled call does."""
+    key = (int(code), bool(prony))
+    if key not in _VARIANTS:
+        _VARIANTS[key] = _make_variant(*key)
+    return _VARIANTS[key]
+
+
+def _make_variant(code, prony):
+    @njit(cache=True)  # the closure's constants are part of numba's cache key: one entry per (code, prony)
+    def step_variant(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_displacement, group_t0,
+                     group_t1, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, kin_start,
+                     kin_slot, node_scale, last_load, n_tets, relax_a, iterations):
+        return step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_displacement, group_t0,
+                    group_t1, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, kin_start,
+                    kin_slot, node_scale, last_load, n_tets, code, prony, relax_a, iterations)
+
+    @njit(cache=True)
+    def sweeps_variant(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale,
+                       relax_a, iterations):
+        return sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale, code,
+                      prony, relax_a, iterations)
+
+    return step_variant, sweeps_variant
