@@ -64,6 +64,7 @@ class AreaLight:
     reflection_cone: bool = False  # extra samples in the part of the light inside the reflection cone
     cone_samples: int = 16
     pattern: str = "blue_noise"  # per-pixel sample offsets: "blue_noise" (tiled, bluenoise.py) or "white_noise"
+    estimator: str = "mc"  # diffuse lobe: "mc" (sum of f V A/m) or "ratio" (closed-form unshadowed x sampled ratio)
 
 
 @dataclass
@@ -275,17 +276,41 @@ def ambient_occlusion(bvh, pos: np.ndarray, n: np.ndarray, samples: int, distanc
 
 
 def irradiance(pos: np.ndarray, n: np.ndarray, light: AreaLight, camera: Camera, m: np.ndarray,
-               seed: int = 0) -> np.ndarray:
+               seed: int = 0, visible=None) -> np.ndarray:
     """Irradiance [W/m^2] from the area light at points ``pos`` with normals ``n``, estimated with
-    ``m`` samples per point exactly as the shader does (no occlusion)."""
+    ``m`` samples per point as the shader does, with ``light.estimator``. ``visible(points, targets)``
+    (optional) says which light samples a point sees; None means no occlusion."""
     centre, ln, eu, ev = light_frame(light, camera)
     rotation = np.random.default_rng(seed).random((pos.shape[0], 2))
     E = np.zeros(pos.shape[0])
+    den = np.zeros(pos.shape[0])
     for s in range(int(m.max())):
         act = np.flatnonzero(s < m)
-        _, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev)
-        E[act] += weight * np.clip(np.einsum("ij,ij->i", n[act], wi), 0.0, None)
+        q, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev)
+        term = weight * np.clip(np.einsum("ij,ij->i", n[act], wi), 0.0, None)
+        den[act] += term
+        E[act] += term if visible is None else term * visible(pos[act], q)
+    if light.estimator == "ratio":
+        E = ratio_scale(pos, n, centre, ln, eu, ev, den) * E
+    elif light.estimator != "mc":
+        raise ValueError(f"light estimator must be 'mc' or 'ratio', found {light.estimator!r}")
     return E * np.mean(light.radiance)
+
+
+def unshadowed_cosine_integral(pos: np.ndarray, n: np.ndarray, centre, ln, eu, ev) -> np.ndarray:
+    """Closed-form ``int_light (n.wi) cos(theta_l) / r^2 dA`` [sr] per point (horizon-clipped polygon,
+    ``shade_kernel.rect_cosine_integral``): the irradiance per unit radiance without occlusion."""
+    from tissuerender.render.shade_kernel import rect_cosine_integral
+
+    c, l, u, v = (np.asarray(x, np.float64) for x in (centre, ln, eu, ev))
+    return np.array([rect_cosine_integral(p[0], p[1], p[2], q[0], q[1], q[2], c, l, u, v)
+                     for p, q in zip(np.asarray(pos, float), np.asarray(n, float))])
+
+
+def ratio_scale(pos, n, centre, ln, eu, ev, den):
+    """The ratio estimator's factor U / sum((n.wi) w) (0 where no sample is above the horizon)."""
+    U = unshadowed_cosine_integral(pos, n, centre, ln, eu, ev)
+    return np.where(den > 0.0, U / np.where(den > 0.0, den, 1.0), 0.0)
 
 
 def _merge(objects):
@@ -448,7 +473,7 @@ def material_tables(optics):
 
 
 def _shade_fused(pos, n, wo, albedo, alpha, mat, thickness, rough_factor, optics, m, rotation, stride, phase, centre,
-                 ln, eu, ev, rays, eps, radiance, rec):
+                 ln, eu, ev, rays, eps, radiance, rec, ratio=False):
     """Direct light of every point through the numba passes of ``shade_kernel``, added to ``radiance``;
     ``rays`` (the frame's ray scene) None means no shadows."""
     from tissuerender.render.shade_kernel import count_rays, light_rays, shade_direct
@@ -479,7 +504,7 @@ def _shade_fused(pos, n, wo, albedo, alpha, mat, thickness, rough_factor, optics
                  np.ascontiguousarray(rough_factor, dtype=f64) if rough_factor is not None else np.ones(k), m,
                  rotation, int(stride), phase, centre, ln, eu, ev, float(eps), rays is not None, ray_offsets, occluded,
                  t["kind"], t["f0"], t["k_sss"], t["sigma"], t["sss_colour"], t["coat"], t["coat_sigma"], t["plastic"],
-                 t["plastic_t"], radiance)
+                 t["plastic_t"], bool(ratio), radiance)
 
 
 def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSettings,
@@ -541,6 +566,11 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
             gbuffer["thickness"] = thickness
     # the numba passes cover every point unless the reflection cone (NumPy estimator) is asked for
     fused = settings.fused and not light.reflection_cone
+    if light.estimator not in ("mc", "ratio"):
+        raise ValueError(f"light estimator must be 'mc' or 'ratio', found {light.estimator!r}")
+    if light.estimator == "ratio" and not fused:
+        raise NotImplementedError("light.estimator = \"ratio\" runs in the numba shading pass only, which the "
+                                  "reflection cone (NumPy estimator) does not use")
     if settings.sss and not fused:
         k_sss = np.array([o.k_sss for o in optics], float)[mat]
         sigma = np.array([o.sigma for o in optics], float).reshape(-1, 3)[mat]
@@ -606,7 +636,8 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         eu2, ev2 = float(eu @ eu), float(ev @ ev)
         if fused:
             _shade_fused(pos, n, wo, albedo, alpha, mat, thickness, rough_factor, optics, m, rotation, stride, phase,
-                         centre, ln, eu, ev, bvh if settings.shadows else None, eps, radiance, rec)
+                         centre, ln, eu, ev, bvh if settings.shadows else None, eps, radiance, rec,
+                         light.estimator == "ratio")
         for s in range(int(m.max()) if m.size and not fused else 0):
             act = np.flatnonzero(s < m)
             q, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev, stride, phase[act])

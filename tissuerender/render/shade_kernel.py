@@ -14,7 +14,8 @@ terms of :func:`tissuerender.render.brdf.reflectance_cos` and the same mucosa st
 
 Materials are looked up per point through the G-buffer's material id in small per-material tables
 (tissue, mucosa stack, rough plastic with its coating-transmittance table). The reflection-cone
-estimator stays on the NumPy path.
+estimator stays on the NumPy path. The ratio estimator of the diffuse lobe (``light.estimator =
+"ratio"``, ``rect_cosine_integral``) exists only here.
 """
 from __future__ import annotations
 
@@ -93,6 +94,75 @@ def _sample_point(i, s, mi, rotation, stride, phase, centre, eu, ev):
 
 
 KIND_TISSUE, KIND_LAYERED, KIND_PLASTIC = 0, 1, 2
+
+
+@njit(cache=True, inline="always")
+def _edge_term(ax, ay, az, bx, by, bz, nx, ny, nz):
+    """Lambert's edge term of a polygon seen from the origin: the angle the edge a -> b subtends times
+    the normal's component along the unit normal of the plane through the origin, a and b."""
+    cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    c2 = cx * cx + cy * cy + cz * cz
+    if c2 <= 0.0:
+        return 0.0
+    d = ax * bx + ay * by + az * bz
+    if d > 0.0 and c2 < 0.01 * d * d:
+        # angle / |a x b| = atan(x) / (x d) with x = |a x b| / d < 0.1: the series of atan(x) / x in
+        # y = x^2 to y^7 (truncation below y^8 / 17 < 1e-17), no square root or arctangent; a laparoscope's
+        # light subtends a few degrees, so this is the common case
+        y = c2 / (d * d)
+        g = 1.0 - y * (1.0 / 3.0 - y * (1.0 / 5.0 - y * (1.0 / 7.0 - y * (1.0 / 9.0 - y * (
+            1.0 / 11.0 - y * (1.0 / 13.0 - y * (1.0 / 15.0)))))))
+        return g / d * (nx * cx + ny * cy + nz * cz)
+    c = np.sqrt(c2)
+    return np.arctan2(c, d) * (nx * cx + ny * cy + nz * cz) / c
+
+
+@njit(cache=True)
+def rect_cosine_integral(px, py, pz, nx, ny, nz, centre, ln, eu, ev):
+    """The unshadowed integral of the cosine over the light seen from point p with unit normal n,
+    ``int_light (n.wi) cos(theta_l) / r^2 dA = int_Omega max(n.w, 0) dw`` [sr] (pi times the form
+    factor; irradiance per unit radiance), in closed form: the rectangle (corners centre +- eu +- ev,
+    one-sided, emitting along ``ln``) is clipped to the upper hemisphere of n and Lambert's polygon
+    formula sums, over the edges, the angle each subtends times the normal's component along its
+    plane's normal (Arvo 1994; Heitz, Hill & McGuire 2018 use it as the analytic factor of the ratio
+    estimator). Zero behind the light or with the light wholly below the horizon."""
+    if (px - centre[0]) * ln[0] + (py - centre[1]) * ln[1] + (pz - centre[2]) * ln[2] <= 0.0:
+        return 0.0
+    # corners relative to p, counter-clockwise in (eu, ev)
+    total = 0.0
+    have_exit = False
+    ex, ey, ez = 0.0, 0.0, 0.0  # where the boundary leaves the upper hemisphere
+    gx, gy, gz = 0.0, 0.0, 0.0  # where it enters again
+    have_entry = False
+    for k in range(4):
+        su = -1.0 if k == 0 or k == 3 else 1.0
+        sv = -1.0 if k < 2 else 1.0
+        k1 = (k + 1) % 4
+        tu = -1.0 if k1 == 0 or k1 == 3 else 1.0
+        tv = -1.0 if k1 < 2 else 1.0
+        ax = centre[0] + su * eu[0] + sv * ev[0] - px
+        ay = centre[1] + su * eu[1] + sv * ev[1] - py
+        az = centre[2] + su * eu[2] + sv * ev[2] - pz
+        bx = centre[0] + tu * eu[0] + tv * ev[0] - px
+        by = centre[1] + tu * eu[1] + tv * ev[1] - py
+        bz = centre[2] + tu * eu[2] + tv * ev[2] - pz
+        ha = nx * ax + ny * ay + nz * az
+        hb = nx * bx + ny * by + nz * bz
+        if ha >= 0.0 and hb >= 0.0:
+            total += _edge_term(ax, ay, az, bx, by, bz, nx, ny, nz)
+        elif ha >= 0.0:  # leaves: a -> crossing
+            t = ha / (ha - hb)
+            ex, ey, ez = ax + t * (bx - ax), ay + t * (by - ay), az + t * (bz - az)
+            have_exit = True
+            total += _edge_term(ax, ay, az, ex, ey, ez, nx, ny, nz)
+        elif hb >= 0.0:  # enters: crossing -> b
+            t = ha / (ha - hb)
+            gx, gy, gz = ax + t * (bx - ax), ay + t * (by - ay), az + t * (bz - az)
+            have_entry = True
+            total += _edge_term(gx, gy, gz, bx, by, bz, nx, ny, nz)
+    if have_exit and have_entry:  # the clipped polygon's edge along the horizon
+        total += _edge_term(ex, ey, ez, gx, gy, gz, nx, ny, nz)
+    return 0.5 * abs(total)
 
 
 @njit(cache=True, inline="always")
@@ -177,7 +247,7 @@ def _table(t, row, mu):
 @njit(cache=True, parallel=True)
 def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_scale, m, rotation, stride, phase,
                  centre, ln, eu, ev, eps, shadows, ray_offsets, occluded, kind, f0, k_sss, sigma, sss_colour, coat,
-                 coat_sigma, plastic, plastic_t, out):
+                 coat_sigma, plastic, plastic_t, ratio, out):
     """Direct light of the area light at every point, into ``out`` (k, 3) (without the light's radiance).
 
     Per point: ``albedo`` (k, 3) and ``alpha`` (textured where the material has a bake), material id
@@ -187,7 +257,12 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
     (coat alpha, coat ior, coat thickness, granular weight, granular alpha), ``coat_sigma`` (3),
     ``plastic`` (eta, 1 / (1 - F_dr), row in ``plastic_t``) and ``plastic_t`` the coating transmittance
     tables. With ``shadows``, sample s of point i is visible unless its packed ray (``ray_offsets[i]``
-    onwards, needed samples only) is ``occluded``."""
+    onwards, needed samples only) is ``occluded``.
+
+    ``ratio`` (``light.estimator = "ratio"``): the diffuse lobe (including the SSS term and, under a coat
+    or a plastic coating, the base) is estimated as ``U sum(f V w) / sum((n.wi) w)`` with U the closed
+    form of the unshadowed cosine integral (``rect_cosine_integral``); the specular lobes stay plain
+    Monte Carlo. Without ``ratio`` every lobe is ``sum(f V w)``."""
     area = 4.0 * np.sqrt(eu[0] * eu[0] + eu[1] * eu[1] + eu[2] * eu[2]) * np.sqrt(
         ev[0] * ev[0] + ev[1] * ev[1] + ev[2] * ev[2])
     for i in prange(pos.shape[0]):
@@ -222,17 +297,22 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
             base = plastic[mt, 1] * t_view / (np.pi * eta * eta)
         mi = m[i]
         r = ray_offsets[i]
-        acc_r = 0.0
+        acc_r = 0.0  # specular (and everything not diffuse): plain Monte Carlo
         acc_g = 0.0
         acc_b = 0.0
+        dif_r = 0.0  # the diffuse lobe (Lambert / Ashikhmin-Shirley, SSS; the base under a coat)
+        dif_g = 0.0
+        dif_b = 0.0
+        den = 0.0  # ratio estimator: sum of the unshadowed cosine terms (n.wi) w
         for s in range(mi):
             qx, qy, qz = _sample_point(i, s, mi, rotation, stride, phase, centre, eu, ev)
+            hidden = False
             if shadows:
                 ok = _segment(px, py, pz, nx, ny, nz, qx, qy, qz, ln, eps)[0]
                 if ok:
                     hidden = occluded[r]
                     r += 1
-                    if hidden:
+                    if hidden and not ratio:
                         continue
             wx, wy, wz = qx - px, qy - py, qz - pz
             d2 = max(wx * wx + wy * wy + wz * wz, 1e-12)
@@ -243,6 +323,9 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
             weight = cos_l / d2 * area / mi
             if weight <= 0.0 or n_l <= 0.0:
                 continue
+            den += n_l * weight
+            if hidden:
+                continue
             hx, hy, hz = vx + wx, vy + wy, vz + wz
             hn = max(np.sqrt(hx * hx + hy * hy + hz * hz), 1e-12)
             n_h = min(max((nx * hx + ny * hy + nz * hz) / hn, 0.0), 1.0)
@@ -252,17 +335,17 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
                 if n_v > 0.0:
                     spec = (_fresnel(v_h, eta) * _ggx_D(n_h, a) * _smith_G1(n_l, a) * _smith_G1(n_v, a)
                             / (4.0 * max(n_v, 1e-12)))
-                b = base * _table(plastic_t, row, n_l) * n_l
-                fr_cos = spec + albedo[i, 0] * b
-                fg_cos = spec + albedo[i, 1] * b
-                fb_cos = spec + albedo[i, 2] * b
+                b = base * _table(plastic_t, row, n_l) * n_l * weight
+                dif_r += albedo[i, 0] * b
+                dif_g += albedo[i, 1] * b
+                dif_b += albedo[i, 2] * b
+                acc_r += spec * weight
+                acc_g += spec * weight
+                acc_b += spec * weight
             else:
                 F = fr + (1.0 - fr) * (1.0 - v_h) ** 5
-                spec = _ggx_D(n_h, a) * _smith_vis(n_v, n_l, a) * F
-                trans = (28.0 / 23.0) * (1.0 - fr) * (1.0 - (1.0 - 0.5 * n_l) ** 5) * t_v
-                fr_cos = (dr * trans + spec) * n_l
-                fg_cos = (dg * trans + spec) * n_l
-                fb_cos = (db * trans + spec) * n_l
+                spec = _ggx_D(n_h, a) * _smith_vis(n_v, n_l, a) * F * n_l
+                trans = (28.0 / 23.0) * (1.0 - fr) * (1.0 - (1.0 - 0.5 * n_l) ** 5) * t_v * n_l
                 if kd == KIND_LAYERED:
                     ca = max(coat[mt, 0], 1e-3)
                     ior = coat[mt, 1]
@@ -273,12 +356,33 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
                     tt = (1.0 - _dielectric_F(n_l, ior)) * (1.0 - _dielectric_F(n_v, ior))
                     path = coat[mt, 2] * (1.0 / max(_refracted_cos(n_l, ior), 1e-3)
                                           + 1.0 / max(_refracted_cos(n_v, ior), 1e-3))
-                    fr_cos = spec_coat + tt * np.exp(-coat_sigma[mt, 0] * path) * (wg * spec_gran + (1.0 - wg) * fr_cos)
-                    fg_cos = spec_coat + tt * np.exp(-coat_sigma[mt, 1] * path) * (wg * spec_gran + (1.0 - wg) * fg_cos)
-                    fb_cos = spec_coat + tt * np.exp(-coat_sigma[mt, 2] * path) * (wg * spec_gran + (1.0 - wg) * fb_cos)
-            acc_r += fr_cos * weight
-            acc_g += fg_cos * weight
-            acc_b += fb_cos * weight
-        out[i, 0] += acc_r
-        out[i, 1] += acc_g
-        out[i, 2] += acc_b
+                    under = wg * spec_gran + (1.0 - wg) * spec
+                    t0 = tt * np.exp(-coat_sigma[mt, 0] * path) * weight
+                    t1 = tt * np.exp(-coat_sigma[mt, 1] * path) * weight
+                    t2 = tt * np.exp(-coat_sigma[mt, 2] * path) * weight
+                    acc_r += spec_coat * weight + t0 * under
+                    acc_g += spec_coat * weight + t1 * under
+                    acc_b += spec_coat * weight + t2 * under
+                    trans *= 1.0 - wg
+                    dif_r += t0 * dr * trans
+                    dif_g += t1 * dg * trans
+                    dif_b += t2 * db * trans
+                else:
+                    acc_r += spec * weight
+                    acc_g += spec * weight
+                    acc_b += spec * weight
+                    dif_r += dr * trans * weight
+                    dif_g += dg * trans * weight
+                    dif_b += db * trans * weight
+        if ratio:
+            # Heitz, Hill & McGuire 2018: the closed-form unshadowed cosine integral times the sampled
+            # (f V) / (n.wi) ratio; exact where the light is unoccluded and f is Lambertian
+            scale = 0.0
+            if den > 0.0:
+                scale = rect_cosine_integral(px, py, pz, nx, ny, nz, centre, ln, eu, ev) / den
+            dif_r *= scale
+            dif_g *= scale
+            dif_b *= scale
+        out[i, 0] += acc_r + dif_r
+        out[i, 1] += acc_g + dif_g
+        out[i, 2] += acc_b + dif_b

@@ -262,6 +262,14 @@ class Light(Strict):
     reflection_cone: bool = False
     cone_samples: Annotated[int, Field(ge=1, le=4096)] = 16
     pattern: Literal["blue_noise", "white_noise"] = "blue_noise"
+    estimator: Literal["mc", "ratio"] = "mc"
+
+    @model_validator(mode="after")
+    def _estimator(self):
+        if self.estimator == "ratio" and self.reflection_cone:
+            raise ValueError("estimator = \"ratio\" runs in the numba shading pass, which the reflection cone "
+                             "does not use: set reflection_cone = false or estimator = \"mc\"")
+        return self
 
     @model_validator(mode="after")
     def _importance(self):
