@@ -1,13 +1,15 @@
 """GLSL fragment passes of the OSMesa backend (``postfx.osmesa`` draws them). Each mirrors a kernel of
-``postfx.effects`` / ``postfx.lens_flare``: the same taps, clamping and bilinear weights (computed in
-the shader from single texels, never by the sampler's filter), so the two backends agree to float32
-rounding. Passes that gather many taps (DoF, Gaussian) compute several outputs per fragment from
-each fetched texel and write them to the layers of a 3D target, which a last pass reassembles.
+``postfx.effects`` / ``postfx.lens_flare``: the same taps, clamping and weights, so the two backends
+agree to float32 rounding (bilinear reads: to the rounding of the texture coordinate, below). Passes
+that gather many taps (DoF, Gaussian) compute several outputs per fragment from each fetched texel:
+the DoF writes them straight into the image with imageStore, the Gaussian's horizontal pass into the
+layers of a 3D target that the vertical pass reads.
 
 Conventions: texel (i, j) is image pixel (column i, row j) (row 0 uploaded is row 0 read back);
-``texture()`` is used only with nearest filtering at texel centres, where it is ``texelFetch`` with the
-texture's wrap mode (clamp to edge = clamped indices, clamp to border = a constant outside), and
-llvmpipe runs it about a third faster than ``texelFetch``.
+``texture()`` with nearest filtering at texel centres is ``texelFetch`` with the texture's wrap mode
+(clamp to edge = clamped indices, clamp to border = a constant outside), and llvmpipe runs it about a
+third faster than ``texelFetch``; a pass that reads bilinearly has the sampler's linear filter switched
+on for that input (``Context.draw(linear=...)``).
 
 Pointwise effects (sensor noise, tone map, colour grade, mask: each output pixel depends only on the
 same input pixel) are GLSL functions ``fx_<effect>`` with their own uniform names. ``source(name,
@@ -23,58 +25,11 @@ in vec2 texCoord;
 //VTK::Output::Dec
 """
 
-# texture() at a texel centre with nearest filtering is texelFetch there, and llvmpipe runs it about a
-# third faster than texelFetch (which checks bounds and levels); every index below is inside the texture
-_BILINEAR = """
-vec4 texel(sampler2D tex, int x, int y) {
-  return texture(tex, (vec2(x, y) + 0.5) / vec2(textureSize(tex, 0)));
-}
-float bilinear(sampler2D tex, int channel, float x, float y) {
-  ivec2 size = textureSize(tex, 0);
-  float w = float(size.x), h = float(size.y);
-  float fx = clamp(x - 0.5, 0.0, w - 1.0);
-  float fy = clamp(y - 0.5, 0.0, h - 1.0);
-  int x0 = size.x > 1 ? min(int(fx), size.x - 2) : 0;
-  int y0 = size.y > 1 ? min(int(fy), size.y - 2) : 0;
-  float tx = fx - float(x0), ty = fy - float(y0);
-  int x1 = min(x0 + 1, size.x - 1), y1 = min(y0 + 1, size.y - 1);
-  float top = texel(tex, x0, y0)[channel] * (1.0 - tx) + texel(tex, x1, y0)[channel] * tx;
-  float bottom = texel(tex, x0, y1)[channel] * (1.0 - tx) + texel(tex, x1, y1)[channel] * tx;
-  return top * (1.0 - ty) + bottom * ty;
-}
-// bilinear() of the three channels at the same point: four fetches instead of twelve, the same
-// arithmetic per channel
-vec3 bilinear3(sampler2D tex, float x, float y) {
-  ivec2 size = textureSize(tex, 0);
-  float w = float(size.x), h = float(size.y);
-  float fx = clamp(x - 0.5, 0.0, w - 1.0);
-  float fy = clamp(y - 0.5, 0.0, h - 1.0);
-  int x0 = size.x > 1 ? min(int(fx), size.x - 2) : 0;
-  int y0 = size.y > 1 ? min(int(fy), size.y - 2) : 0;
-  float tx = fx - float(x0), ty = fy - float(y0);
-  int x1 = min(x0 + 1, size.x - 1), y1 = min(y0 + 1, size.y - 1);
-  vec3 top = texel(tex, x0, y0).rgb * (1.0 - tx) + texel(tex, x1, y0).rgb * tx;
-  vec3 bottom = texel(tex, x0, y1).rgb * (1.0 - tx) + texel(tex, x1, y1).rgb * tx;
-  return top * (1.0 - ty) + bottom * ty;
-}
-"""
-
-# the same bilinear weights on all three channels at once, zero outside the texture
-_BILINEAR_ZERO = """
-vec3 texel0(sampler2D tex, ivec2 q) {
-  ivec2 size = textureSize(tex, 0);
-  return (q.x < 0 || q.y < 0 || q.x >= size.x || q.y >= size.y) ? vec3(0.0) : texture(tex, (vec2(q) + 0.5) / vec2(size)).rgb;
-}
-vec3 bilinear_zero(sampler2D tex, float x, float y) {
-  float fx = x - 0.5, fy = y - 0.5;
-  float x0f = floor(fx), y0f = floor(fy);
-  float tx = fx - x0f, ty = fy - y0f;
-  ivec2 q = ivec2(int(x0f), int(y0f));
-  vec3 top = texel0(tex, q) * (1.0 - tx) + texel0(tex, q + ivec2(1, 0)) * tx;
-  vec3 bottom = texel0(tex, q + ivec2(0, 1)) * (1.0 - tx) + texel0(tex, q + ivec2(1, 1)) * tx;
-  return top * (1.0 - ty) + bottom * ty;
-}
-"""
+# Bilinear reads (chromatic aberration, the half-resolution upsampling, the lens flare's features) use the
+# sampler's own linear filter for the draw (``Context.draw(linear=...)``): llvmpipe interpolates float
+# textures with float32 weights, clamped or with a zero border as the NumPy kernels, one fetch instead
+# of four; the results differ from NumPy's by the float rounding of the texture coordinate (below
+# 4e-4 on values up to 60 at 640x480).
 
 _PIXEL = "  ivec2 size = textureSize(img, 0);\n  ivec2 p = ivec2(texCoord * vec2(size));\n"
 
@@ -309,13 +264,13 @@ SHADERS = {
     "pointwise": _HEADER + "uniform sampler2D img;\n//EPILOGUE::Dec\nvoid main() {\n" + _PIXEL
     + "  gl_FragData[0] = vec4(post(texture(img, texCoord).rgb, p, size), 1.0);\n}\n",
     "chromatic_aberration": _HEADER + "uniform sampler2D img;\nuniform vec3 scale;\nuniform vec2 centre;\n"
-    "//EPILOGUE::Dec\n" + _BILINEAR + """
+    "//EPILOGUE::Dec\n" + """
 void main() {
-""" + _PIXEL + """  float x = float(p.x) + 0.5, y = float(p.y) + 0.5;
-  vec3 rgb;
-  for (int c = 0; c < 3; ++c) {
-    rgb[c] = bilinear(img, c, centre.x + (x - centre.x) * scale[c], centre.y + (y - centre.y) * scale[c]);
-  }
+""" + _PIXEL + """  // channel c bilinear at centre + (pos - centre) scale_c: the sampler's linear filter (clamped)
+  vec2 pos = vec2(p) + 0.5, inv = 1.0 / vec2(size);
+  vec3 rgb = vec3(texture(img, (centre + (pos - centre) * scale.r) * inv).r,
+                  texture(img, (centre + (pos - centre) * scale.g) * inv).g,
+                  texture(img, (centre + (pos - centre) * scale.b) * inv).b);
   gl_FragData[0] = vec4(post(rgb, p, size), 1.0);
 }
 """,
@@ -356,10 +311,10 @@ void main() {
 """,
     # img + k up(low), low at half resolution read bilinearly at ((i + 1/2) / 2, (j + 1/2) / 2)
     "add_upsampled": _HEADER + "uniform sampler2D img;\nuniform sampler2D low;\nuniform float k;\n"
-    "//EPILOGUE::Dec\n" + _BILINEAR + """
+    "//EPILOGUE::Dec\n" + """
 void main() {
-""" + _PIXEL + """  float x = (float(p.x) + 0.5) * 0.5, y = (float(p.y) + 0.5) * 0.5;
-  vec3 up = bilinear3(low, x, y);
+""" + _PIXEL + """  // bilinear at ((i + 1/2) / 2, (j + 1/2) / 2) half-res texels: the sampler's linear filter (clamped)
+  vec3 up = texture(low, (vec2(p) + 0.5) * 0.5 / vec2(textureSize(low, 0))).rgb;
   gl_FragData[0] = vec4(post(texture(img, texCoord).rgb + k * up, p, size), 1.0);
 }
 """,
@@ -395,8 +350,8 @@ def flare_features(n_ghosts: int, falloff: int, reads_half: tuple[bool, ...]) ->
     float s = ghosts[{k}].x;
     vec2 q = centre + (pos - centre) / s;
     float wk = fade(q) / (s * s);
-    if (wk > 0.0) acc += ghosts[{k}].yzw * wk * {"bilinear_zero(half_res, q.x / 2.0, q.y / 2.0)" if half
-                                                   else "bilinear_zero(quarter, q.x / 4.0, q.y / 4.0)"};
+    if (wk > 0.0) acc += ghosts[{k}].yzw * wk * {"texture(half_res, q * inv_half).rgb" if half
+                                                   else "texture(quarter, q * inv_quarter).rgb"};
   }}
 """ for k, half in enumerate(reads_half))
     SHADERS[name] = _HEADER + f"""uniform sampler2D half_res;
@@ -406,7 +361,6 @@ uniform float rho;
 uniform float halo;
 uniform vec3 halo_tint;
 uniform vec4 ghosts[{max(n_ghosts, 1)}];
-{_BILINEAR_ZERO}
 float fade(vec2 q) {{
   float base = max(1.0 - length(q - centre) / rho, 0.0), f = 1.0;
 {fade}  return f;
@@ -414,6 +368,9 @@ float fade(vec2 q) {{
 void main() {{
   vec2 size = vec2(textureSize(half_res, 0));
   ivec2 p = ivec2(texCoord * size);
+  // bilinear reads, zero outside (lens_flare.bilinear_zero): the samplers' linear filter with a zero border;
+  // full-res position q is q / 2 half-res and q / 4 quarter-res texels
+  vec2 inv_half = 0.5 / size, inv_quarter = 0.25 / vec2(textureSize(quarter, 0));
   vec2 pos = 2.0 * (vec2(p) + 0.5);
   vec3 acc = vec3(0.0);
 {ghosts}  vec2 d = centre - pos;
@@ -421,7 +378,7 @@ void main() {{
   if (halo > 0.0 && dist > 0.0) {{
     vec2 q = pos + d * (halo / dist);
     float wh = fade(q);
-    if (wh > 0.0) acc += halo_tint * wh * bilinear_zero(half_res, q.x / 2.0, q.y / 2.0);
+    if (wh > 0.0) acc += halo_tint * wh * texture(half_res, q * inv_half).rgb;
   }}
   gl_FragData[0] = vec4(acc, 1.0);
 }}
