@@ -24,7 +24,8 @@ from tissuerender.render.brdf import layered_reflectance_cos, reflectance_cos
 from tissuerender.render.plastic import roughplastic_cos
 from tissuerender.render.rays import ray_scene
 from tissuerender.render.raster import (box_downsample, camera_basis, interpolate_gbuffer,
-                                         interpolate_vertex_scalar, rasterize_objects)
+                                         interpolate_vertex_scalar, material_lookup, rasterize_objects,
+                                         scatter_radiance)
 from tissuerender.stages import StageRecorder, recorder_or_new
 
 ADAPTIVE_DISTANCES = (0.08, 0.16)  # [m] thresholds of m(d)
@@ -476,7 +477,7 @@ def _shade_fused(pos, n, wo, albedo, alpha, mat, thickness, rough_factor, optics
                  ln, eu, ev, rays, eps, radiance, rec, ratio=False):
     """Direct light of every point through the numba passes of ``shade_kernel``, added to ``radiance``;
     ``rays`` (the frame's ray scene) None means no shadows."""
-    from tissuerender.render.shade_kernel import count_rays, light_rays, shade_direct
+    from tissuerender.render.shade_kernel import cosine_integrals, light_rays, shade_direct
 
     k = pos.shape[0]
     if k == 0:
@@ -489,22 +490,24 @@ def _shade_fused(pos, n, wo, albedo, alpha, mat, thickness, rough_factor, optics
     occluded = np.zeros(0, np.bool_)
     if rays is not None:
         with rec.run("shadow_rays"):
-            counts = np.empty(k, np.int64)
-            count_rays(pos, n, m, rotation, int(stride), phase, centre, ln, eu, ev, float(eps), counts)
-            np.cumsum(counts[:-1], out=ray_offsets[1:])
-            total = int(ray_offsets[-1] + counts[-1])
-            origins, dirs, tfar = np.empty((total, 3), np.float32), np.empty((total, 3), np.float32), np.empty(total)
+            np.cumsum(m[:-1], out=ray_offsets[1:])
+            total = int(ray_offsets[-1] + m[-1])
+            origins, dirs, tfar = (np.empty((total, 3), np.float32), np.empty((total, 3), np.float32),
+                                   np.empty(total, np.float32))
             light_rays(pos, n, m, rotation, int(stride), phase, centre, ln, eu, ev, float(eps), ray_offsets, origins,
                        dirs, tfar)
             occluded = np.ascontiguousarray(rays.occluded_rays(origins, dirs, tfar), dtype=np.bool_)
     t = material_tables(optics)
+    unshadowed = np.zeros(k if ratio else 0)
+    if ratio:
+        cosine_integrals(pos, n, centre, ln, eu, ev, unshadowed)
     has_sss = thickness is not None
     shade_direct(pos, n, wo, np.ascontiguousarray(albedo, dtype=f64), np.ascontiguousarray(alpha, dtype=f64), mat,
                  np.ascontiguousarray(thickness, dtype=f64) if has_sss else np.zeros(1), has_sss,
                  np.ascontiguousarray(rough_factor, dtype=f64) if rough_factor is not None else np.ones(k), m,
                  rotation, int(stride), phase, centre, ln, eu, ev, float(eps), rays is not None, ray_offsets, occluded,
                  t["kind"], t["f0"], t["k_sss"], t["sigma"], t["sss_colour"], t["coat"], t["coat_sigma"], t["plastic"],
-                 t["plastic_t"], bool(ratio), radiance)
+                 t["plastic_t"], bool(ratio), unshadowed, radiance)
 
 
 def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSettings,
@@ -522,10 +525,9 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         jitter_seed = int(settings.seed) % (1 << 62) if ss > 1 and settings.jitter else -1
         depth, tri_id, bary = rasterize_objects(P, T, camera, W, H, jitter_seed)
         jj, ii, pos, n, wo, tri = interpolate_gbuffer(P, N, T, tri_id, bary, camera.position)
-        mat = tri_mat[tri]
-        albedo = np.array([o.diffuse_albedo for o in optics], float).reshape(-1, 3)[mat]
-        alpha = np.array([o.roughness for o in optics], float)[mat] if optics else np.zeros(0)
-        f0 = np.array([o.f0 for o in optics], float)[mat] if optics else np.zeros(0)
+        mat, albedo, alpha, f0 = material_lookup(tri, tri_mat, np.array([o.diffuse_albedo for o in optics], float),
+                                                 np.array([o.roughness for o in optics], float),
+                                                 np.array([o.f0 for o in optics], float))
         gbuffer.update(depth=depth, position=pos, normal=n, material_id=mat, albedo=albedo, roughness=alpha)
         rough_factor = None
         if settings.motion or any(o.layers is not None and o.layers.texture_seed is not None for o in optics):
@@ -556,8 +558,15 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
             if reach > 0.0 and settings.sss_thickness == "vertex":
                 # one ray per render-surface vertex along its inward normal, interpolated over each
                 # triangle with the raster's barycentrics (a thickness map on the surface)
-                nv = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
-                at_vertex = bvh.closest_hit(P - inward * nv, -nv, reach) + inward
+                # (only the vertices of triangles in view: the interpolation reads no other)
+                seen = np.zeros(T.shape[0], bool)
+                seen[tri] = True
+                used = np.zeros(P.shape[0], bool)
+                used[T[seen]] = True
+                idx = np.flatnonzero(used)
+                nv = N[idx] / np.maximum(np.linalg.norm(N[idx], axis=1, keepdims=True), 1e-12)
+                at_vertex = np.full(P.shape[0], np.nan)
+                at_vertex[idx] = bvh.closest_hit(P[idx] - inward * nv, -nv, reach) + inward
                 thickness = interpolate_vertex_scalar(at_vertex, T, tri_id, bary, jj, ii)
             elif reach > 0.0:
                 thickness = bvh.closest_hit(pos - inward * n, -n, reach) + inward
@@ -580,7 +589,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
     layered = _layer_arrays(optics, mat)
     if layered is not None and rough_factor is not None:
         layered["granular_alpha"] = layered["granular_alpha"] * rough_factor
-    gbuffer["specular"] = np.array([o.f0 for o in optics], float)[mat] if optics else np.zeros(0)
+    gbuffer["specular"] = f0
     if layered is not None:
         # the layer channels exist only when a layered material is in view: each point's connective and
         # submucosa colours (k, 2, 3), and the weight of the wet (mucus) reflection, the coat's Fresnel
@@ -688,7 +697,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
                 gbuffer["ao"] = visibility
         radiance += albedo * ambient[None, :] * visibility[:, None]
     with rec.run("shade"):
-        hdr[jj, ii] = np.maximum(radiance, 0.0).astype(np.float32)
+        scatter_radiance(radiance, jj, ii, hdr)
     out_depth = depth.astype(np.float32)
     if ss > 1:
         hdr, out_depth = box_downsample(hdr, out_depth, ss)

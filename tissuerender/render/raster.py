@@ -230,3 +230,42 @@ def interpolate_vertex_scalar(values, triangles, tri_id, bary, jj, ii):
     _interpolate_scalar(np.ascontiguousarray(values, dtype=np.float64), np.ascontiguousarray(triangles, np.int64),
                         tri_id, bary, jj, ii, out)
     return out
+
+
+@njit(cache=True, parallel=True)
+def _material_lookup(tri, tri_mat, albedo_table, alpha_table, f0_table, mat, albedo, alpha, f0):
+    for k in prange(tri.shape[0]):
+        m = tri_mat[tri[k]]
+        mat[k] = m
+        albedo[k, 0] = albedo_table[m, 0]
+        albedo[k, 1] = albedo_table[m, 1]
+        albedo[k, 2] = albedo_table[m, 2]
+        alpha[k] = alpha_table[m]
+        f0[k] = f0_table[m]
+
+
+def material_lookup(tri, tri_mat, albedo_table, alpha_table, f0_table):
+    """Per G-buffer point with triangle ``tri``: material id, albedo (k, 3), roughness and F0 from the
+    per-material tables, in one parallel pass (instead of four fancy-indexing gathers)."""
+    k = tri.shape[0]
+    mat, albedo, alpha, f0 = np.empty(k, np.int64), np.empty((k, 3)), np.empty(k), np.empty(k)
+    if k:
+        _material_lookup(np.ascontiguousarray(tri, np.int64), np.ascontiguousarray(tri_mat, np.int64),
+                         np.ascontiguousarray(albedo_table, np.float64).reshape(-1, 3),
+                         np.ascontiguousarray(alpha_table, np.float64), np.ascontiguousarray(f0_table, np.float64),
+                         mat, albedo, alpha, f0)
+    return mat, albedo, alpha, f0
+
+
+@njit(cache=True, parallel=True)
+def _scatter(radiance, jj, ii, hdr):
+    for k in prange(jj.shape[0]):
+        for c in range(3):
+            hdr[jj[k], ii[k], c] = np.float32(max(radiance[k, c], 0.0))
+
+
+def scatter_radiance(radiance, jj, ii, hdr):
+    """``hdr[jj, ii] = max(radiance, 0)`` as float32 (the covered raster samples are distinct)."""
+    if jj.shape[0]:
+        _scatter(np.ascontiguousarray(radiance, np.float64), np.ascontiguousarray(jj, np.int64),
+                 np.ascontiguousarray(ii, np.int64), hdr)

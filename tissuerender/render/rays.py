@@ -47,8 +47,10 @@ class EmbreeRays:
         self.triangles = np.ascontiguousarray(triangles, dtype=np.int64)
         self._scene = rtcore_scene.EmbreeScene()
         if len(self.triangles):
-            TriangleMesh(self._scene, np.ascontiguousarray(points, dtype=np.float32),
-                         np.ascontiguousarray(triangles, dtype=np.int32))
+            # embreex copies element by element through Python indexing: float64 / int64 arrays (converted to
+            # Embree's float32 / uint32 on the way, the same values as a NumPy cast) copy faster than float32
+            # / int32 ones (38 vs 56 ms for 82k triangles)
+            TriangleMesh(self._scene, self.points, self.triangles)
 
     def _run(self, origins, directions, dists, query):
         n = origins.shape[0]

@@ -6,11 +6,11 @@ points (the same Hammersley points rotated per pixel, the same ``A / m`` weights
 terms of :func:`tissuerender.render.brdf.reflectance_cos` and the same mucosa stack of
 :func:`tissuerender.render.brdf.layered_reflectance_cos`; tests compare the two to 1e-9), but:
 
-- parallel loops over pixels: ``count_rays`` and ``light_rays`` write the shadow rays of the samples that
-  can contribute, packed; the ray backend (:mod:`tissuerender.render.rays`, Embree or our BVH) answers
+- parallel loops over pixels: ``light_rays`` writes one shadow ray per sample (zero-length where the
+  sample cannot contribute); the ray backend (:mod:`tissuerender.render.rays`, Embree or our BVH) answers
   them in one batch; ``shade_direct`` evaluates the BRDF of the visible samples;
-- a sample whose light cosine or surface cosine is zero contributes nothing, so its shadow ray is not
-  traced (the NumPy path traces it and multiplies by zero).
+- a sample whose light cosine or surface cosine is zero contributes nothing, so its shadow ray has zero
+  length (the NumPy path traces it and multiplies by zero).
 
 Materials are looked up per point through the G-buffer's material id in small per-material tables
 (tissue, mucosa stack, rough plastic with its coating-transmittance table). The reflection-cone
@@ -185,22 +185,20 @@ def _segment(px, py, pz, nx, ny, nz, qx, qy, qz, ln, eps):
 
 
 @njit(cache=True, parallel=True)
-def count_rays(pos, nrm, m, rotation, stride, phase, centre, ln, eu, ev, eps, counts):
-    """Number of shadow rays each point needs (samples that can contribute)."""
+def cosine_integrals(pos, nrm, centre, ln, eu, ev, out):
+    """``rect_cosine_integral`` of every point (a pass of its own: inlined in the shading loop it cost
+    twice as much)."""
     for i in prange(pos.shape[0]):
-        c = 0
-        for s in range(m[i]):
-            qx, qy, qz = _sample_point(i, s, m[i], rotation, stride, phase, centre, eu, ev)
-            ok = _segment(pos[i, 0], pos[i, 1], pos[i, 2], nrm[i, 0], nrm[i, 1], nrm[i, 2], qx, qy, qz, ln, eps)[0]
-            if ok:
-                c += 1
-        counts[i] = c
+        out[i] = rect_cosine_integral(pos[i, 0], pos[i, 1], pos[i, 2], nrm[i, 0], nrm[i, 1], nrm[i, 2], centre, ln,
+                                      eu, ev)
 
 
 @njit(cache=True, parallel=True)
 def light_rays(pos, nrm, m, rotation, stride, phase, centre, ln, eu, ev, eps, ray_offsets, origins, dirs, tfar):
-    """The needed shadow rays, packed: point i's rays start at ``ray_offsets[i]``, in sample order
-    (float32 origin, unit direction, length: the form the ray backends take)."""
+    """The shadow rays of every sample: sample s of point i is ray ``ray_offsets[i] + s`` (the exclusive
+    prefix sum of m; float32 origin, unit direction, length: the form the ray backends take). A sample
+    that cannot contribute (``_segment``) gets a zero-length ray at the point, cheap to trace, whose
+    answer ``shade_direct`` never reads; one pass, with no count of the needed rays first."""
     for i in prange(pos.shape[0]):
         r = ray_offsets[i]
         for s in range(m[i]):
@@ -211,7 +209,11 @@ def light_rays(pos, nrm, m, rotation, stride, phase, centre, ln, eu, ev, eps, ra
                 origins[r, 0], origins[r, 1], origins[r, 2] = ox, oy, oz
                 dirs[r, 0], dirs[r, 1], dirs[r, 2] = dx, dy, dz
                 tfar[r] = length
-                r += 1
+            else:
+                origins[r, 0], origins[r, 1], origins[r, 2] = pos[i, 0], pos[i, 1], pos[i, 2]
+                dirs[r, 0], dirs[r, 1], dirs[r, 2] = 0.0, 0.0, 1.0
+                tfar[r] = 0.0
+            r += 1
 
 
 @njit(cache=True, inline="always")
@@ -247,7 +249,7 @@ def _table(t, row, mu):
 @njit(cache=True, parallel=True)
 def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_scale, m, rotation, stride, phase,
                  centre, ln, eu, ev, eps, shadows, ray_offsets, occluded, kind, f0, k_sss, sigma, sss_colour, coat,
-                 coat_sigma, plastic, plastic_t, ratio, out):
+                 coat_sigma, plastic, plastic_t, ratio, unshadowed, out):
     """Direct light of the area light at every point, into ``out`` (k, 3) (without the light's radiance).
 
     Per point: ``albedo`` (k, 3) and ``alpha`` (textured where the material has a bake), material id
@@ -256,12 +258,12 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
     ``kind`` (tissue / layered / plastic), ``f0``, ``k_sss``, ``sigma`` (3), ``sss_colour`` (3), ``coat``
     (coat alpha, coat ior, coat thickness, granular weight, granular alpha), ``coat_sigma`` (3),
     ``plastic`` (eta, 1 / (1 - F_dr), row in ``plastic_t``) and ``plastic_t`` the coating transmittance
-    tables. With ``shadows``, sample s of point i is visible unless its packed ray (``ray_offsets[i]``
-    onwards, needed samples only) is ``occluded``.
+    tables. With ``shadows``, sample s of point i that can contribute is visible unless ray
+    ``ray_offsets[i] + s`` is ``occluded``.
 
     ``ratio`` (``light.estimator = "ratio"``): the diffuse lobe (including the SSS term and, under a coat
     or a plastic coating, the base) is estimated as ``U sum(f V w) / sum((n.wi) w)`` with U the closed
-    form of the unshadowed cosine integral (``rect_cosine_integral``); the specular lobes stay plain
+    form of the unshadowed cosine integral (``unshadowed``, from ``cosine_integrals``); the specular lobes stay plain
     Monte Carlo. Without ``ratio`` every lobe is ``sum(f V w)``."""
     area = 4.0 * np.sqrt(eu[0] * eu[0] + eu[1] * eu[1] + eu[2] * eu[2]) * np.sqrt(
         ev[0] * ev[0] + ev[1] * ev[1] + ev[2] * ev[2])
@@ -308,10 +310,8 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
             qx, qy, qz = _sample_point(i, s, mi, rotation, stride, phase, centre, eu, ev)
             hidden = False
             if shadows:
-                ok = _segment(px, py, pz, nx, ny, nz, qx, qy, qz, ln, eps)[0]
-                if ok:
-                    hidden = occluded[r]
-                    r += 1
+                if _segment(px, py, pz, nx, ny, nz, qx, qy, qz, ln, eps)[0]:
+                    hidden = occluded[r + s]
                     if hidden and not ratio:
                         continue
             wx, wy, wz = qx - px, qy - py, qz - pz
@@ -379,7 +379,7 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
             # (f V) / (n.wi) ratio; exact where the light is unoccluded and f is Lambertian
             scale = 0.0
             if den > 0.0:
-                scale = rect_cosine_integral(px, py, pz, nx, ny, nz, centre, ln, eu, ev) / den
+                scale = unshadowed[i] / den
             dif_r *= scale
             dif_g *= scale
             dif_b *= scale
