@@ -1,6 +1,6 @@
 """Post-effects cost: milliseconds per effect on a 640x480 frame, NumPy reference vs OSMesa GLSL.
 
-Usage: .venv/bin/python benchmarks/postfx.py [--quick] [--refresh-frame]
+Usage: .venv/bin/python benchmarks/postfx.py [--quick] [--refresh-frame] [--pause-ms 50]
 Two frames, each through the whole chain of all ten effects:
 - synthetic (the keys without suffix): uniform random HDR in [0, 3] with a 60x highlight, depth
   uniform random per pixel in [0.05, 0.25] m (focus 0.1 m, aperture 2 mm, max CoC 8 px): every pixel
@@ -19,8 +19,11 @@ the last pass of the effect before it, so the chain total is less than their sum
 and osmesa_ms_core (the sum of the required effects alone: DoF, CA, tone map, grade, mask),
 numpy_cpu_ms_total / osmesa_cpu_ms_total (and _rendered): the median CPU time of the process over
 the chain, all threads (numba's and llvmpipe's), which a busy machine inflates less than the wall
-time (OpenMP workers spinning while they wait count too).
-Each figure is the median of several runs after one warm-up (compilation, context creation).
+time (OpenMP workers spinning while they wait count too); osmesa_pass_ms (and _rendered): the
+osmesa chain pass by pass ("<pass>[+fused effects] <width>x<height>", plus the DoF's CPU steps and
+the read-back), each draw waited for before and after, medians over the runs after the chains.
+Each figure is the median of several runs after one warm-up (compilation, context creation); every
+timed run starts after a 50 ms pause (PAUSE_S: numba's OpenMP workers stop spinning).
 """
 from __future__ import annotations
 
@@ -94,6 +97,25 @@ def rendered_frame(refresh: bool):
     return data["hdr"], data["depth"], postfx.Lens(scene.camera.fov_deg, W, H), chain
 
 
+# Every timed run starts after this pause. numba's OpenMP workers (libgomp) spin for several
+# milliseconds after each parallel region before they sleep, and an osmesa chain started right after
+# a numpy chain shared the two cores with them: 62.9 ms against 52.1 ms after a 50 ms pause and 50.8 ms
+# after another osmesa chain (same process, quiet machine; 49.9 ms right after numpy with
+# GOMP_SPINCOUNT=0), while the numpy chain took 41.6 / 39.2 ms after an osmesa chain / a pause. A
+# program uses one backend; the pause keeps one backend's idle workers out of the other's time.
+PAUSE_S = 0.05
+
+
+def _set_pause(seconds: float) -> None:
+    global PAUSE_S
+    PAUSE_S = seconds
+
+
+def _run(hdr, depth, lens, chain, backend, seed):
+    time.sleep(PAUSE_S)
+    return postfx.apply_chain(hdr, depth, chain, lens, backend=backend, seed=seed)
+
+
 def time_chains(hdr, depth, lens, chain, backends, repeats):
     """Whole-chain runs, the backends alternating so that both see the same machine load."""
     for backend in backends:  # warm-up: compilation, context creation, shader compilation
@@ -102,10 +124,28 @@ def time_chains(hdr, depth, lens, chain, backends, repeats):
     cpu: dict = {b: [] for b in backends}
     for r in range(repeats):
         for backend in backends:
+            time.sleep(PAUSE_S)
             c0 = time.process_time()
             runs[backend].append(postfx.apply_chain(hdr, depth, chain, lens, backend=backend, seed=r))
             cpu[backend].append(time.process_time() - c0)
     return runs, cpu
+
+
+def profile_passes(hdr, depth, lens, chain, repeats):
+    """The osmesa chain pass by pass: each draw waits for the one before and for itself (so the sum is a
+    little above the chain's own time), medians over ``repeats`` chains, in ms, keyed by pass and size."""
+    ctx = osmesa.Context.get()
+    runs = []
+    for r in range(repeats + 1):
+        time.sleep(PAUSE_S)
+        ctx.profile = {}
+        try:
+            postfx.apply_chain(hdr, depth, chain, lens, backend="osmesa", seed=r)
+        finally:
+            profile, ctx.profile = ctx.profile, None
+        if r:  # the first run compiles
+            runs.append(profile)
+    return {k: round(float(np.median([run.get(k, 0.0) for run in runs]) * 1e3), 2) for k in runs[0]}
 
 
 def time_effects(hdr, depth, lens, chain, backends, repeats):
@@ -121,7 +161,7 @@ def time_effects(hdr, depth, lens, chain, backends, repeats):
         samples: dict = {b: [] for b in backends}
         for r in range(repeats):
             for backend in backends:
-                run = postfx.apply_chain(img, depth, [(name, params)], lens, backend=backend, seed=r)
+                run = _run(img, depth, lens, [(name, params)], backend, r)
                 samples[backend].append(run.seconds[name])
         for backend in backends:
             ms[(name, backend)] = float(np.median(samples[backend])) * 1e3
@@ -132,7 +172,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--refresh-frame", action="store_true", help="render the liver_probe frame again")
+    parser.add_argument("--pause-ms", type=float, default=50.0,
+                        help="idle time before each timed run (default %(default)s; 0: back to back)")
     args = parser.parse_args()
+    _set_pause(args.pause_ms * 1e-3)
     repeats = 5 if args.quick else 15
     backends = ["numpy"] + (["osmesa"] if osmesa.library_available() else [])
     result: dict = {}
@@ -155,6 +198,11 @@ def main() -> None:
             groups = {"+".join([k, *last.fused.get(k, [])]): float(np.median([run.seconds[k] for run in runs[backend]])) * 1e3
                       for k in last.seconds}
             print(f"{label:9s} {backend} in the chain [ms]: " + ", ".join(f"{k} {v:.1f}" for k, v in groups.items()))
+        if "osmesa" in backends:
+            passes = profile_passes(hdr, depth, lens, chain, repeats)
+            result[f"osmesa_pass_ms{suffix}"] = passes
+            print(f"{label:9s} osmesa pass by pass (each waited for) [ms]: "
+                  + ", ".join(f"{k} {v:.2f}" for k, v in passes.items()) + f"; sum {sum(passes.values()):.1f}")
     hdr, depth, lens, chain = frames[""]
     ms = time_effects(hdr, depth, lens, chain, backends, repeats)
     for backend in backends:
@@ -167,6 +215,7 @@ def main() -> None:
         result["osmesa_skipped"] = "libOSMesa missing (Debian package libosmesa6)"
     result["machine"] = (f"{platform.machine()} {os.cpu_count()} cpus, numba threads {numba.get_num_threads()}, "
                          f"LP_NUM_THREADS {os.environ.get('LP_NUM_THREADS', 'default')}, "
+                         f"numba threading layer {numba.threading_layer()}, pause {PAUSE_S * 1e3:.0f} ms before each run, "
                          f"load average {os.getloadavg()[0]:.2f}")
     print(json.dumps(result))
 

@@ -124,6 +124,9 @@ class Context:
         self.gl.glReadPixels.argtypes = [ctypes.c_int] * 4 + [ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p]
         self.free: dict[tuple[int, int], list] = {}
         self.pooled: dict[int, int] = {}  # id -> layers of the targets this context allocated
+        # when a dict: every draw waits for the passes before it, and for itself, and adds its seconds
+        # under "<pass>[+epilogue] <width>x<height>" (a profile for the benchmark; off by default)
+        self.profile: dict | None = None
 
     # -- textures -------------------------------------------------------------------------------
     def _filtering(self, tex, border=None):
@@ -200,6 +203,9 @@ class Context:
         texture), visible to every later pass (a memory barrier follows the draw). ``linear``: inputs this
         pass samples with llvmpipe's bilinear filter (input name -> True for zero outside the texture,
         False for clamped coordinates); they return to nearest filtering afterwards."""
+        if self.profile is not None:
+            self.finish()
+            t0 = time.perf_counter()
         fs = shaders.source(name, tuple(epilogue))
         if fs not in self.quads:
             from vtkmodules.vtkRenderingOpenGL2 import vtkOpenGLQuadHelper
@@ -240,11 +246,21 @@ class Context:
                 fbo.RemoveColorAttachment(layer)
         finally:
             fbo.RestorePreviousBindingsAndBuffers()
+        if self.profile is not None:
+            self.finish()
+            key = f"{'+'.join((name, *epilogue))} {width}x{height}"
+            self.profile[key] = self.profile.get(key, 0.0) + time.perf_counter() - t0
         return target
+
+    def note(self, key: str, t0: float):
+        """Add the seconds since ``t0`` to the profile (when one is kept) under ``key``."""
+        if self.profile is not None:
+            self.profile[key] = self.profile.get(key, 0.0) + time.perf_counter() - t0
 
     def download(self, tex) -> np.ndarray:
         """Read a target back as a (H, W, 3) float32 array: glReadPixels of the RGB channels straight into
         the array (0.65 ms at 640x480; 2.7 ms through VTK's pixel buffer as RGBA, then a strided copy)."""
+        t0 = time.perf_counter()
         width, height = tex.GetWidth(), tex.GetHeight()
         out = np.empty((height, width, 3), np.float32)  # rows of 12 W bytes: the default pack alignment 4
         fbo = self.fbo
@@ -257,6 +273,7 @@ class Context:
             self.gl.glReadPixels(0, 0, width, height, GL_RGB, GL_FLOAT, out.ctypes.data)
         finally:
             fbo.RestorePreviousBindingsAndBuffers()
+        self.note(f"read-back {width}x{height}", t0)
         return out
 
     def finish(self):
@@ -472,7 +489,9 @@ def _depth_of_field(ctx, tex, depth, params, lens, ep, host=None):
     ``host`` still on the CPU: then its padded source is built there (one numba loop) and uploaded in
     place of the frame, which saves the ``dof_source`` pass and the frame's own upload."""
     h, w = host.shape[:2] if host is not None else (tex.GetHeight(), tex.GetWidth())
+    t0 = time.perf_counter()
     reach2, tile_max = coc_reach2(depth, params, lens.fov_deg, w)
+    ctx.note("dof reach2 + tile maxima (CPU)", t0)
     max_reach2 = float(tile_max.max())
     if max_reach2 < 0.5:  # every CoC radius below 1/2 (reach2 = r^2 + 1/4): nothing moves
         if tex is None:
@@ -481,7 +500,9 @@ def _depth_of_field(ctx, tex, depth, params, lens, ep, host=None):
     kx, ky = DOF_BLOCK
     pad = int(math.floor(math.sqrt(max_reach2))) + max(kx, ky)
     if host is not None:
+        t0 = time.perf_counter()
         src = ctx.upload(_dof_source_host(np.ascontiguousarray(host, dtype=np.float32), reach2, pad))
+        ctx.note("dof source (CPU) + upload", t0)
     else:
         reach_tex = ctx.upload(reach2)
         src = ctx.draw("dof_source", {"img": tex, "reach2": reach_tex}, {"pad": pad}, w + 2 * pad, h + 2 * pad)
