@@ -85,10 +85,13 @@ def _raster_rows(sx, sy, zv, tris, width, row0, row1, near, depth, tri_id, bary,
         area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
         if area == 0.0:
             continue
+        # multiplying by 1 / area keeps every edge function's sign exactly (shared edges stay watertight)
+        inv_area = 1.0 / area
         i0 = max(int(np.floor(min(x0, x1, x2))), 0)
         i1 = min(int(np.ceil(max(x0, x1, x2))), width - 1)
         j0 = max(int(np.floor(y_lo)), row0)
         j1 = min(int(np.ceil(y_hi)), row1)
+        iza, izb, izc = 1.0 / zv[a], 1.0 / zv[b], 1.0 / zv[c]
         for j in range(j0, j1 + 1):
             py = j + 0.5
             for i in range(i0, i1 + 1):
@@ -96,12 +99,16 @@ def _raster_rows(sx, sy, zv, tris, width, row0, row1, near, depth, tri_id, bary,
                 if jittered:
                     px = i + offsets[j, i, 0]
                     py = j + offsets[j, i, 1]
-                w0 = ((x1 - px) * (y2 - py) - (x2 - px) * (y1 - py)) / area
-                w1 = ((x2 - px) * (y0 - py) - (x0 - px) * (y2 - py)) / area
-                w2 = 1.0 - w0 - w1
-                if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
+                w0 = ((x1 - px) * (y2 - py) - (x2 - px) * (y1 - py)) * inv_area
+                if w0 < 0.0:
                     continue
-                p0, p1, p2 = w0 / zv[a], w1 / zv[b], w2 / zv[c]
+                w1 = ((x2 - px) * (y0 - py) - (x0 - px) * (y2 - py)) * inv_area
+                if w1 < 0.0:
+                    continue
+                w2 = 1.0 - w0 - w1
+                if w2 < 0.0:
+                    continue
+                p0, p1, p2 = w0 * iza, w1 * izb, w2 * izc
                 inv_z = p0 + p1 + p2
                 z = 1.0 / inv_z
                 if z < depth[j, i]:

@@ -51,6 +51,10 @@ class EmbreeRays:
             # Embree's float32 / uint32 on the way, the same values as a NumPy cast) copy faster than float32
             # / int32 ones (38 vs 56 ms for 82k triangles)
             TriangleMesh(self._scene, self.points, self.triangles)
+            # Embree builds its BVH at the first query: one zero-length ray here, so the build is timed with
+            # the construction (the renderer's "bvh" stage) rather than inside the first batch of rays
+            self._scene.run(np.zeros((1, 3), np.float32), np.array([[0.0, 0.0, 1.0]], np.float32),
+                            query="OCCLUDED", dists=np.zeros(1, np.float32))
 
     def _run(self, origins, directions, dists, query):
         n = origins.shape[0]

@@ -105,14 +105,14 @@ def _edge_term(ax, ay, az, bx, by, bz, nx, ny, nz):
     if c2 <= 0.0:
         return 0.0
     d = ax * bx + ay * by + az * bz
-    if d > 0.0 and c2 < 0.01 * d * d:
-        # angle / |a x b| = atan(x) / (x d) with x = |a x b| / d < 0.1: the series of atan(x) / x in
-        # y = x^2 to y^7 (truncation below y^8 / 17 < 1e-17), no square root or arctangent; a laparoscope's
+    if d > 0.0 and c2 < 0.0025 * d * d:
+        # angle / |a x b| = atan(x) / (x d) with x = |a x b| / d < 0.05: the series of atan(x) / x in
+        # y = x^2 to y^5 (truncation below y^6 / 13 < 2e-17), no square root or arctangent; a laparoscope's
         # light subtends a few degrees, so this is the common case
-        y = c2 / (d * d)
-        g = 1.0 - y * (1.0 / 3.0 - y * (1.0 / 5.0 - y * (1.0 / 7.0 - y * (1.0 / 9.0 - y * (
-            1.0 / 11.0 - y * (1.0 / 13.0 - y * (1.0 / 15.0)))))))
-        return g / d * (nx * cx + ny * cy + nz * cz)
+        inv_d = 1.0 / d
+        y = c2 * inv_d * inv_d
+        g = 1.0 - y * (1.0 / 3.0 - y * (1.0 / 5.0 - y * (1.0 / 7.0 - y * (1.0 / 9.0 - y * (1.0 / 11.0)))))
+        return g * inv_d * (nx * cx + ny * cy + nz * cz)
     c = np.sqrt(c2)
     return np.arctan2(c, d) * (nx * cx + ny * cy + nz * cz) / c
 
@@ -128,6 +128,16 @@ def rect_cosine_integral(px, py, pz, nx, ny, nz, centre, ln, eu, ev):
     estimator). Zero behind the light or with the light wholly below the horizon."""
     if (px - centre[0]) * ln[0] + (py - centre[1]) * ln[1] + (pz - centre[2]) * ln[2] <= 0.0:
         return 0.0
+    # the common case first: the whole light above the horizon, four edges, each corner computed once
+    cx, cy, cz = centre[0] - px, centre[1] - py, centre[2] - pz
+    x0, y0, z0 = cx - eu[0] - ev[0], cy - eu[1] - ev[1], cz - eu[2] - ev[2]
+    x1, y1, z1 = cx + eu[0] - ev[0], cy + eu[1] - ev[1], cz + eu[2] - ev[2]
+    x2, y2, z2 = cx + eu[0] + ev[0], cy + eu[1] + ev[1], cz + eu[2] + ev[2]
+    x3, y3, z3 = cx - eu[0] + ev[0], cy - eu[1] + ev[1], cz - eu[2] + ev[2]
+    if (nx * x0 + ny * y0 + nz * z0 >= 0.0 and nx * x1 + ny * y1 + nz * z1 >= 0.0
+            and nx * x2 + ny * y2 + nz * z2 >= 0.0 and nx * x3 + ny * y3 + nz * z3 >= 0.0):
+        return 0.5 * abs(_edge_term(x0, y0, z0, x1, y1, z1, nx, ny, nz) + _edge_term(x1, y1, z1, x2, y2, z2, nx, ny, nz)
+                         + _edge_term(x2, y2, z2, x3, y3, z3, nx, ny, nz) + _edge_term(x3, y3, z3, x0, y0, z0, nx, ny, nz))
     # corners relative to p, counter-clockwise in (eu, ev)
     total = 0.0
     have_exit = False
