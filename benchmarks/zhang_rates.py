@@ -10,8 +10,10 @@ form, sim/cnn_energy.py ModalPropagation). One core: numba and BLAS pinned to on
 median of ``repeats`` timed runs (wall time); the load average at the start is printed with them, because the
 machine may be shared.
 
-EBM runs with ``--kernel`` (default ``blocked``, sim/ebm_blocked.py) and, for the ratio measured in the same
-run, with the scalar numba kernel (``*_scalar_hz``); the other integrators with ``numba`` (or ``numpy``).
+EBM runs with ``--kernel`` (default ``blocked``, sim/ebm_blocked.py) in float64 (the ``ebm_*_480tets_hz`` keys)
+and, in the same run, with the blocked kernel's explicit float32 sweeps (``*_float32_hz``: not the default; their
+deviation from float64 is measured in docs/ebm.md) and the scalar numba kernel (``*_scalar_hz``); the other
+integrators with ``numba`` (or ``numpy``).
 
 Usage: .venv/bin/python benchmarks/zhang_rates.py [--quick] [--kernel blocked|numba|numpy]
 Last line: one JSON object of steps per second ("<case>_hz") with the thesis's reference rates.
@@ -76,7 +78,8 @@ def describe(name: str, integrator, settings: dict, dt: float) -> str:
     """The settings that set the cost of one step, printed beside its rate."""
     parts = [f"dt {dt:.4g} s"]
     if name == "ebm":
-        parts.append(f"{integrator.iterations} iterations, {integrator.model.n_tets} tets, kernel {integrator.kernel}")
+        parts.append(f"{integrator.iterations} iterations, {integrator.model.n_tets} tets, kernel {integrator.kernel}, "
+                     f"{integrator.precision}")
     else:
         parts.append(f"{integrator.model.n_nodes} nodes, force_model {settings.get('force_model')}")
         energy = getattr(integrator, "energy", None)
@@ -98,6 +101,11 @@ def main() -> None:
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     ebm_kernel = {"kernel": args.kernel}
     kernel = {"kernel": "numpy" if args.kernel == "numpy" else "numba"}
+    single = [] if args.kernel != "blocked" else [  # the explicit float32 option of the blocked kernel
+        ("ebm_isotropic_480tets_float32", "ebm", ebm_block("neo_hookean"),
+         {"iterations": 20, "kernel": "blocked", "precision": "float32"}, 1e-3, None),
+        ("ebm_anisotropic_480tets_float32", "ebm", ebm_block("anisotropic_neo_hookean", fibre=[0.0, 0.0, 1.0]),
+         {"iterations": 20, "kernel": "blocked", "precision": "float32"}, 1e-3, None)]
     scalar = [] if args.kernel != "blocked" else [
         ("ebm_isotropic_480tets_scalar", "ebm", ebm_block("neo_hookean"), {"iterations": 20, "kernel": "numba"}, 1e-3,
          None),
@@ -107,6 +115,7 @@ def main() -> None:
         ("ebm_isotropic_480tets", "ebm", ebm_block("neo_hookean"), {"iterations": 20, **ebm_kernel}, 1e-3, 1000.0),
         ("ebm_anisotropic_480tets", "ebm", ebm_block("anisotropic_neo_hookean", fibre=[0.0, 0.0, 1.0]),
          {"iterations": 20, **ebm_kernel}, 1e-3, 200.0),
+        *single,
         *scalar,
         ("cnn_energy_1331nodes", "cnn", cnn_cube(), {"force_model": "energy", "K": 4.0, **kernel}, 1.0 / 60.0, 30.0),
         # forward Euler needs damping of the highest modes to be stable at all (docs/integrators-zhang.md)
@@ -122,7 +131,8 @@ def main() -> None:
             result[f"{key}_thesis_hz"] = thesis
         print(f"{key:32s} {hz:9.1f} steps/s" + (f"   (thesis {thesis:g} Hz)" if thesis else "")
               + f"   [{describe(name, integrator, settings, dt)}]")
-    result["settings"] = {"ebm_iterations": 20, "ebm_dt_s": 1e-3, "cnn_energy_dt_s": round(1.0 / 60.0, 6),
+    result["settings"] = {"ebm_iterations": 20, "ebm_dt_s": 1e-3, "ebm_precision": "float64 (*_float32_hz: float32)",
+                          "cnn_energy_dt_s": round(1.0 / 60.0, 6),
                           "energy_rho_m2_per_s": 1.0, "steps": steps, "repeats": repeats, "statistic": "median"}
     result["machine"] = (f"{platform.machine()} {platform.processor() or ''} {os.cpu_count()} cpus, 1 numba thread, "
                          f"1 BLAS thread, ebm kernel {args.kernel}, load average {load:.2f} at the start")

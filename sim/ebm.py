@@ -29,7 +29,10 @@ Settings: ``iterations`` (default 100), ``substeps``, ``update`` ("average" | "s
 ``sim.ebm_blocked``; "numba": the scalar per-tet kernels of ``sim.ebm_kernels``, which the blocked kernel is
 tested against to 1e-10; "numpy": the vectorised NumPy reference below, which the scalar kernels are
 tested against to 1e-10). Valanis–Landel materials always take the NumPy path (their curves are not
-compiled).
+compiled). ``precision`` ("float64", default | "float32"): with the blocked kernel, the sweeps' lane loop in
+float32 (16 tets per AVX-512 register; Neo-Hookean and anisotropic Neo-Hookean without Prony only; positions,
+node sums and the energy accounting stay float64). Its deviation from float64 is measured in docs/ebm.md: as
+large as a 1e-13 m perturbation of a float64 run on the Zhang 5.3.2 cases, so not the default.
 """
 from __future__ import annotations
 
@@ -76,6 +79,7 @@ def energy_density(name: str, F, mu, lam, eta=None, a0=None, vl=None):
         psi = psi + 0.5 * eta * dbar * dbar
     return psi
 KERNELS = ("blocked", "numba", "numpy")
+PRECISIONS = ("float64", "float32")
 MAX_STRETCH = 10.0  # |F|_F / sqrt(3) above this after a step: no tissue does that, the iterations failed
 
 
@@ -102,6 +106,13 @@ class EBM:
             raise ValueError(f"ebm: kernel must be one of {', '.join(KERNELS)}, found {self.kernel!r}")
         if model.constitutive not in ebm_kernels.MATERIALS:
             self.kernel = "numpy"
+        self.precision = settings.get("precision", "float64")
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"ebm: precision must be one of {', '.join(PRECISIONS)}, found {self.precision!r}")
+        if self.precision == "float32" and (self.kernel != "blocked" or model.material_params.get("prony")
+                                            or model.constitutive not in ("neo_hookean", "anisotropic_neo_hookean")):
+            raise ValueError("ebm: precision float32 needs kernel blocked and neo_hookean or anisotropic_neo_hookean "
+                             f"without Prony terms (found kernel {self.kernel!r}, material {model.constitutive!r})")
         self.w = model.inverse_mass()
         counts = np.bincount(model.tets.ravel(), minlength=model.n_nodes).astype(np.float64)
         self.node_scale = 1.0 / np.maximum(counts, 1.0) if self.update == "average" else np.ones(model.n_nodes)
@@ -161,8 +172,21 @@ class EBM:
         self._group_t0 = np.array([float(p.t_start) for p in m.prescribed] + [0.0])
         self._group_t1 = np.array([float(p.t_end) for p in m.prescribed] + [0.0])
         self._X = np.ascontiguousarray(m.X, dtype=np.float64)
+        self._blocked_scale = self._node_scale * self._w  # the sweep's lane loop leaves w_k out of its increments
+        single = self.precision == "float32"
+        self._params32 = self._params.astype(np.float32) if single else np.zeros((1, 1), np.float32)
+        self._out32 = np.zeros(self._out.shape if single else (1, 1), np.float32)
+        self._corners32 = np.zeros(self._corners.shape if single else (1, 1), np.float32)
         self._f_ext = np.ascontiguousarray(self.f_ext, dtype=np.float64)
         self._last_load_force = np.ascontiguousarray(self._last_load_force, dtype=np.float64)
+        # compiled (on first use) for this material, Prony and precision only
+        self._step_kernel, self._sweeps_kernel = ebm_blocked.variant(self._code, self.prony is not None, single)
+        # the step kernel's arguments that do not change between steps (before and after the Prony rows)
+        self._step_args = (self._X, self._f_ext, self._w, self._kin_nodes, self._kin_group, self._kin_displacement,
+                           self._group_t0, self._group_t1, self._node_index, self._params)
+        self._step_args_after = (self._out, self._corners, self._free_nodes, self._free_start, self._free_slot,
+                                 self._kin_start, self._kin_slot, self._blocked_scale, self._last_load_force,
+                                 m.n_tets, self._params32, self._out32, self._corners32)
 
     def _relaxation(self, h):
         """(a, Gamma, g) of the current Prony history for a step h: ``S^ = a S - Gamma``, ``Psi^ = a Psi - g``."""
@@ -248,10 +272,16 @@ class EBM:
     def _iterate(self, x, h):
         if self.kernel == "blocked":
             x = np.ascontiguousarray(x, dtype=np.float64)
-            prony, (a, _, _) = self._relaxation(h)
-            _, sweeps = ebm_blocked.variant(self._code, prony)
-            done = sweeps(x, self._node_index, self._params, self._relax_blocks, self._out, self._corners,
-                          self._free_nodes, self._free_start, self._free_slot, self._node_scale, a, self.iterations)
+            _, (a, _, _) = self._relaxation(h)
+            sweeps = self._sweeps_kernel
+            if self.precision == "float32":
+                done = sweeps(x, self._X, self._node_index, self._params32, self._out32, self._corners32,
+                              self._free_nodes, self._free_start, self._free_slot, self._blocked_scale,
+                              self.iterations)
+            else:
+                done = sweeps(x, self._node_index, self._params, self._relax_blocks, self._out, self._corners,
+                              self._free_nodes, self._free_start, self._free_slot, self._blocked_scale, a,
+                              self.iterations)
             if done < self.iterations:
                 raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
             return x
@@ -311,14 +341,10 @@ class EBM:
             x_old, v_old = x, v
             x, v = np.empty_like(x_old), np.empty_like(x_old)
             t += h
-            prony, (a, _, _) = self._relaxation(h)
-            step, _ = ebm_blocked.variant(self._code, prony)  # compiled for this material and Prony only
-            done, work, strain, stretch = step(
-                x_old, v_old, x, v, t, h, self._X, self._f_ext, self._w, self._kin_nodes, self._kin_group,
-                self._kin_displacement, self._group_t0, self._group_t1, self._node_index, self._params,
-                self._relax_blocks, self._out, self._corners, self._free_nodes, self._free_start, self._free_slot,
-                self._kin_start, self._kin_slot, self._node_scale, self._last_load_force, self.model.n_tets, a,
-                self.iterations)
+            _, (a, _, _) = self._relaxation(h)
+            done, work, strain, stretch = self._step_kernel(x_old, v_old, x, v, t, h, *self._step_args,
+                                                            self._relax_blocks, *self._step_args_after, a,
+                                                            self.iterations)
             if done < self.iterations:
                 raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
             self.work_in += work

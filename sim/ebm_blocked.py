@@ -8,10 +8,10 @@ consecutive tets; every per-tet quantity is stored in rows of ``LANES`` values (
 
 - ``corners`` holds, per tet, the positions of its four nodes (12 rows), written by the node pass;
 - a branch-free loop over the lanes of a block (energy, Piola stress, node gradients, multiplier,
-  increments; LLVM vectorises it with 8-wide zmm FMAs on AVX-512: ``_sweep_block.inspect_asm``) reads them
-  and writes the tet's four increments (12 rows) to ``out``;
+  increments; LLVM vectorises it with 8-wide zmm FMAs on AVX-512: ``variant(code, prony)[1].inspect_asm()``)
+  reads them and writes the tet's four increments without the inverse mass (12 rows) to ``out``;
 - the node pass, for every free node, sums its increments over its incidences in tet order (the scalar
-  kernel's summation order; no scatter), applies ``x_i += dx_i / n_i`` (update = "average") and writes
+  kernel's summation order; no scatter), applies ``x_i += w_i dx_i / n_i`` (update = "average") and writes
   the new position to the node's corner slots, so no gather by node index is needed in the lane loop.
 
 Per lane, with ``g_k = P b_k`` (``b_k`` the rows of Dm^-1, ``b_0 = -(b_1 + b_2 + b_3)``):
@@ -27,6 +27,12 @@ J^(-1/3) = y comes from ``sim.ebm_kernels._inverse_cube_root`` (no libm call, so
 ``1/J = y^3``, and ``J^(-2/3) - 1 = N / Q`` with ``N = -j y^3 (y + 1)``, ``Q = y^2 + y + 1`` (no cancellation).
 ``Psi`` is kept as a fraction ``num / den`` (``den = Q``, or ``Q^2`` with the fibre), so that a sweep divides
 once per tet: ``lambda' = num / (den sum_j w_j |g_j|^2)``.
+
+``precision = "float32"`` (``sim.ebm``; split models without Prony): :func:`sweeps_f32` runs the lane loop in
+float32 on displacement rows (16 lanes per zmm register); everything else stays float64 (end of this module).
+
+Each run compiles only the variants it uses: ``code``, ``prony`` and the precision are literals, and
+:func:`variant` returns compiled closures that pass them as constants.
 
 Kernels use ``fastmath={"contract"}`` only (fused multiply-add: one rounding instead of two, nothing else;
 no reassociation and no finite-math assumption, so the NaN checks keep working) and ``error_model="numpy"``
@@ -278,8 +284,8 @@ def _lanes(code, prony, forces, c, p, r, out, blk, rblk, relax_a, lanes):
             nan = denom != denom
             bad += 1 if nan else 0
             lam_k = lam_k if ok else (np.nan if nan else 0.0)
-            # 5.8: dx_k = -w_k lambda g_k
-            s0, s1, s2, s3 = -(w0 * lam_k), -(w1 * lam_k), -(w2 * lam_k), -(w3 * lam_k)
+            # 5.8: dx_k = -w_k lambda g_k; the node pass multiplies by w_k (a node's inverse mass, with its scale)
+            s0 = s1 = s2 = s3 = -lam_k
         out[blk, (OUT_D + 0) * LANES + l] = s0 * g0x
         out[blk, (OUT_D + 1) * LANES + l] = s0 * g0y
         out[blk, (OUT_D + 2) * LANES + l] = s0 * g0z
@@ -378,10 +384,39 @@ def sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, f
     return iterations
 
 
+def _any_sweeps(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
+                free_slot, node_scale, code, prony, single, relax_a, iterations):
+    """:func:`sweeps`, or with ``single`` (a literal) :func:`sweeps_f32` followed by the float64 corner positions for
+    the accounting; compiled code only. (A plain ``if single`` in :func:`step` is not pruned before typing, so the
+    float32 path would be typed for materials it does not support.)"""
+    raise NotImplementedError("sim.ebm_blocked._any_sweeps runs in compiled code only")
+
+
+@overload(_any_sweeps, prefer_literal=True)
+def _any_sweeps_variant(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes,
+                        free_start, free_slot, node_scale, code, prony, single, relax_a, iterations):
+    if not all(isinstance(a, types.Literal) for a in (code, prony, single)):
+        return None
+    c, pr = int(code.literal_value), bool(prony.literal_value)
+    if bool(single.literal_value):
+        def impl(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
+                 free_slot, node_scale, code, prony, single, relax_a, iterations):
+            done = sweeps_f32(x, X, node_index, params32, out32, corners32, free_nodes, free_start, free_slot,
+                              node_scale, c, iterations)
+            load_corners(x, node_index, corners)
+            return done
+    else:
+        def impl(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
+                 free_slot, node_scale, code, prony, single, relax_a, iterations):
+            return sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale,
+                          c, pr, relax_a, iterations)
+    return impl
+
+
 @njit(cache=True)
 def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_displacement, group_t0, group_t1,
          node_index, params, relax, out, corners, free_nodes, free_start, free_slot, kin_start, kin_slot, node_scale,
-         last_load, n_tets, code, prony, relax_a, iterations):
+         last_load, n_tets, params32, out32, corners32, code, prony, single, relax_a, iterations):
     """One EBM step of length ``h`` ending at time ``t``, from (``x_prev``, ``v_prev``) into (``x``, ``v``):
 
     1. prediction 5.13, ``x = x_prev + h (v_prev + h f_ext w)``, kinematic nodes at their targets
@@ -393,10 +428,12 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
        the work increment of the loads (external forces, plus the reactions ``-f_int`` at kinematic nodes),
        trapezoidal with ``last_load`` (updated in place).
 
-    Returns ``(sweeps done, work increment [J], strain energy [J], largest stretch)``. ``code`` and ``prony`` are
-    compiled as literals (one specialisation per material and Prony in use)."""
+    Returns ``(sweeps done, work increment [J], strain energy [J], largest stretch)``. ``code``, ``prony`` and
+    ``single`` are compiled as literals (one specialisation per material and Prony in use). ``single``: the sweeps
+    run :func:`sweeps_f32` on ``params32``, ``out32``, ``corners32`` (the rest stays float64)."""
     literally(code)
     literally(prony)
+    literally(single)
     n = x.shape[0]
     for i in range(n):
         for d in range(3):
@@ -416,8 +453,8 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
                 frac = min(max((t - t0) / (t1 - t0), 0.0), 1.0)
             for d in range(3):
                 x[i, d] = X[i, d] + frac * kin_displacement[q, d]
-    done = sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale, code,
-                  prony, relax_a, iterations)
+    done = _any_sweeps(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes,
+                       free_start, free_slot, node_scale, code, prony, single, relax_a, iterations)
     for i in range(n):
         for d in range(3):
             v[i, d] = (x[i, d] - x_prev[i, d]) / h
@@ -463,32 +500,280 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
 _VARIANTS: dict = {}
 
 
-def variant(code, prony):
-    """``(step, sweeps)`` for one material ``code`` and ``prony`` flag: :func:`step` and :func:`sweeps` without
-    their ``code`` and ``prony`` arguments, compiled (on first use, cached on disk) for that combination only.
+def variant(code, prony, single=False):
+    """``(step, sweeps)`` for one material ``code``, ``prony`` flag and precision (``single``: the float32 sweeps of
+    :func:`sweeps_f32`, split models without Prony only): :func:`step` and :func:`sweeps` (or :func:`sweeps_f32`)
+    without their literal arguments, compiled (on first use, cached on disk) for that combination only.
 
     ``step`` and ``sweeps`` take ``code`` and ``prony`` as literals (``numba.literally``): called from Python with
     plain values, every call would go through the literal re-dispatch (~0.1 s); these wrappers pass them as
     compile-time constants, so a call costs what an ordinary compiled call does."""
-    key = (int(code), bool(prony))
+    key = (int(code), bool(prony), bool(single))
+    if single and (prony or key[0] not in (NEO_HOOKEAN, ANISOTROPIC_NEO_HOOKEAN)):
+        raise ValueError("ebm: precision float32 supports neo_hookean and anisotropic_neo_hookean without Prony only")
     if key not in _VARIANTS:
         _VARIANTS[key] = _make_variant(*key)
     return _VARIANTS[key]
 
 
-def _make_variant(code, prony):
-    @njit(cache=True)  # the closure's constants are part of numba's cache key: one entry per (code, prony)
+def _make_variant(code, prony, single):
+    @njit(cache=True)  # the closure's constants are part of numba's cache key: one entry per (code, prony, single)
     def step_variant(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_displacement, group_t0,
                      group_t1, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, kin_start,
-                     kin_slot, node_scale, last_load, n_tets, relax_a, iterations):
+                     kin_slot, node_scale, last_load, n_tets, params32, out32, corners32, relax_a, iterations):
         return step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_displacement, group_t0,
                     group_t1, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, kin_start,
-                    kin_slot, node_scale, last_load, n_tets, code, prony, relax_a, iterations)
+                    kin_slot, node_scale, last_load, n_tets, params32, out32, corners32, code, prony, single, relax_a,
+                    iterations)
 
-    @njit(cache=True)
-    def sweeps_variant(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale,
-                       relax_a, iterations):
-        return sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale, code,
-                      prony, relax_a, iterations)
+    if single:
+        @njit(cache=True)
+        def sweeps_variant(x, X, node_index, params32, out32, corners32, free_nodes, free_start, free_slot,
+                           node_scale, iterations):
+            return sweeps_f32(x, X, node_index, params32, out32, corners32, free_nodes, free_start, free_slot,
+                              node_scale, code, iterations)
+    else:
+        @njit(cache=True)
+        def sweeps_variant(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale,
+                           relax_a, iterations):
+            return sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale,
+                          code, prony, relax_a, iterations)
 
     return step_variant, sweeps_variant
+
+
+# -- single precision sweeps (settings ``precision = "float32"``): the split models only, without Prony ----------
+# The lane loop runs on float32 (16 lanes per zmm register instead of 8); positions, the node sums, the prediction,
+# the velocities and the energy accounting stay float64. The corner rows hold the displacements u = x - X (float32),
+# so that H = F - I = (u_k - u_0) b_k comes without the cancellation of F - I in single precision.
+_F32_ONE = np.float32(1.0)
+_F32_TWO = np.float32(2.0)
+_F32_THREE = np.float32(3.0)
+_F32_HALF = np.float32(0.5)
+_F32_THIRD = np.float32(1.0 / 3.0)
+_F32_TWO_THIRDS = np.float32(2.0 / 3.0)
+_F32_C2 = np.float32(2.0 / 9.0)
+_F32_C3 = np.float32(14.0 / 81.0)
+_F32_TINY = np.float32(1e-37)  # "at rest to the last bit": no increment (float32's smallest normal is 1.2e-38)
+_F32_NAN = np.float32(np.nan)
+_F32_ZERO = np.float32(0.0)
+_INV_CBRT_MAGIC_F32 = np.float32((4.0 / 3.0 * 127.0 - 0.066) * 2.0 ** 23)
+
+
+@njit(cache=True, inline="always")
+def _inverse_cube_root_f32(J):
+    """J^(-1/3) in float32 as ``sim.ebm_kernels._inverse_cube_root`` (exponent-bit seed within 3.4 %, two quartic
+    steps); NaN for J <= 0."""
+    y = np.int32(_INV_CBRT_MAGIC_F32 - np.float32(np.float32(J).view(np.int32)) * _F32_THIRD).view(np.float32)
+    for _ in range(2):
+        r = _F32_ONE - J * (y * y * y)
+        y = y + y * r * (_F32_THIRD + r * (_F32_C2 + r * _F32_C3))
+    return y if J > _F32_ZERO else _F32_NAN
+
+
+@njit(cache=True, inline="always")
+def _split_model_f32(h00, h01, h02, h10, h11, h12, h20, h21, h22, mu, kappa, eta, ax, ay, az, a0_norm, fibre):
+    """:func:`_split_model` in float32 from H (every operand float32)."""
+    f00, f11, f22 = h00 + _F32_ONE, h11 + _F32_ONE, h22 + _F32_ONE
+    f01, f02, f10, f12, f20, f21 = h01, h02, h10, h12, h20, h21
+    c00 = h11 * h22 - f21 * f12
+    c01 = f12 * f20 - h22 * f10
+    c02 = f10 * f21 - f20 * h11
+    c10 = f21 * f02 - f01 * h22
+    c11 = h22 * h00 - f02 * f20
+    c12 = f20 * f01 - h00 * f21
+    c20 = f01 * f12 - h11 * f02
+    c21 = f02 * f10 - f12 * h00
+    c22 = h00 * h11 - f10 * f01
+    tr = h00 + h11 + h22
+    I2 = c00 + c11 + c22
+    detH = h00 * c00 + f01 * c01 + f02 * c02
+    j = tr + I2 + detH
+    J = _F32_ONE + j
+    HH = (h00 * h00 + f01 * f01 + f02 * f02 + f10 * f10 + h11 * h11 + f12 * f12 + f20 * f20 + f21 * f21
+          + h22 * h22)
+    d = _F32_TWO * tr + HH
+    C00 = _F32_ONE + (h11 + h22) + c00
+    C11 = _F32_ONE + (h00 + h22) + c11
+    C22 = _F32_ONE + (h00 + h11) + c22
+    C01, C02, C12 = c01 - f10, c02 - f20, c12 - f21
+    C10, C20, C21 = c10 - f01, c20 - f02, c21 - f12
+    y = _inverse_cube_root_f32(J)
+    y2 = y * y
+    inv_J = y2 * y
+    Q = y2 + y + _F32_ONE
+    N = -j * inv_J * (y + _F32_ONE)
+    a = mu * y2
+    b = a * (_F32_THREE + d) * _F32_THIRD * inv_J
+    s = kappa * j - b
+    num = _F32_HALF * mu * ((_F32_THREE + d) * N + d * Q) + _F32_HALF * kappa * j * j * Q
+    if fibre:
+        fa0 = f00 * ax + f01 * ay + f02 * az
+        fa1 = f10 * ax + f11 * ay + f12 * az
+        fa2 = f20 * ax + f21 * ay + f22 * az
+        I4 = fa0 * fa0 + fa1 * fa1 + fa2 * fa2
+        ha0, ha1, ha2 = h00 * ax + h01 * ay + h02 * az, h10 * ax + h11 * ay + h12 * az, h20 * ax + h21 * ay + h22 * az
+        q = _F32_TWO * (ax * ha0 + ay * ha1 + az * ha2) + ha0 * ha0 + ha1 * ha1 + ha2 * ha2 + a0_norm
+        D = (_F32_ONE + q) * N + q * Q
+        num = num * Q + _F32_HALF * eta * D * D
+        den = Q * Q
+        e = eta * (y2 * I4 - _F32_ONE) * y2
+        s = s - e * _F32_TWO_THIRDS * I4 * inv_J
+        e2 = _F32_TWO * e
+        u0, u1, u2 = e2 * fa0, e2 * fa1, e2 * fa2
+        P = (a * f00 + s * C00 + u0 * ax, a * f01 + s * C01 + u0 * ay, a * f02 + s * C02 + u0 * az,
+             a * f10 + s * C10 + u1 * ax, a * f11 + s * C11 + u1 * ay, a * f12 + s * C12 + u1 * az,
+             a * f20 + s * C20 + u2 * ax, a * f21 + s * C21 + u2 * ay, a * f22 + s * C22 + u2 * az)
+        return num, den, P
+    P = (a * f00 + s * C00, a * f01 + s * C01, a * f02 + s * C02,
+         a * f10 + s * C10, a * f11 + s * C11, a * f12 + s * C12,
+         a * f20 + s * C20, a * f21 + s * C21, a * f22 + s * C22)
+    return num, Q, P
+
+
+@njit(cache=True, inline="always")
+def _lanes_f32(fibre, c, p, out, blk, lanes):
+    """The sweep's lane loop in float32 (``c``: displacement rows u = x - X). Writes ``-lambda' g_k`` (the node pass
+    multiplies by w_k); returns the number of NaN multipliers, counted in float32: a 64-bit counter would make the
+    widest type in the loop 64 bits and cap the vector width at 8 lanes (ymm) instead of 16 (zmm)."""
+    bad = _F32_ZERO
+    for l in range(lanes):
+        b10, b11, b12 = p[blk, (ROW_B + 0) * LANES + l], p[blk, (ROW_B + 1) * LANES + l], p[blk, (ROW_B + 2) * LANES + l]
+        b20, b21, b22 = p[blk, (ROW_B + 3) * LANES + l], p[blk, (ROW_B + 4) * LANES + l], p[blk, (ROW_B + 5) * LANES + l]
+        b30, b31, b32 = p[blk, (ROW_B + 6) * LANES + l], p[blk, (ROW_B + 7) * LANES + l], p[blk, (ROW_B + 8) * LANES + l]
+        x0, y0, z0 = c[blk, 0 * LANES + l], c[blk, 1 * LANES + l], c[blk, 2 * LANES + l]
+        e1x, e1y, e1z = c[blk, 3 * LANES + l] - x0, c[blk, 4 * LANES + l] - y0, c[blk, 5 * LANES + l] - z0
+        e2x, e2y, e2z = c[blk, 6 * LANES + l] - x0, c[blk, 7 * LANES + l] - y0, c[blk, 8 * LANES + l] - z0
+        e3x, e3y, e3z = c[blk, 9 * LANES + l] - x0, c[blk, 10 * LANES + l] - y0, c[blk, 11 * LANES + l] - z0
+        num, den, P = _split_model_f32(
+            e1x * b10 + e2x * b20 + e3x * b30, e1x * b11 + e2x * b21 + e3x * b31, e1x * b12 + e2x * b22 + e3x * b32,
+            e1y * b10 + e2y * b20 + e3y * b30, e1y * b11 + e2y * b21 + e3y * b31, e1y * b12 + e2y * b22 + e3y * b32,
+            e1z * b10 + e2z * b20 + e3z * b30, e1z * b11 + e2z * b21 + e3z * b31, e1z * b12 + e2z * b22 + e3z * b32,
+            p[blk, ROW_MU * LANES + l], p[blk, ROW_KAPPA * LANES + l], p[blk, ROW_ETA * LANES + l],
+            p[blk, (ROW_FIBRE + 0) * LANES + l], p[blk, (ROW_FIBRE + 1) * LANES + l],
+            p[blk, (ROW_FIBRE + 2) * LANES + l], p[blk, ROW_FIBRE_NORM * LANES + l], fibre)
+        g1x = P[0] * b10 + P[1] * b11 + P[2] * b12
+        g1y = P[3] * b10 + P[4] * b11 + P[5] * b12
+        g1z = P[6] * b10 + P[7] * b11 + P[8] * b12
+        g2x = P[0] * b20 + P[1] * b21 + P[2] * b22
+        g2y = P[3] * b20 + P[4] * b21 + P[5] * b22
+        g2z = P[6] * b20 + P[7] * b21 + P[8] * b22
+        g3x = P[0] * b30 + P[1] * b31 + P[2] * b32
+        g3y = P[3] * b30 + P[4] * b31 + P[5] * b32
+        g3z = P[6] * b30 + P[7] * b31 + P[8] * b32
+        g0x = -(g1x + g2x + g3x)
+        g0y = -(g1y + g2y + g3y)
+        g0z = -(g1z + g2z + g3z)
+        w0, w1 = p[blk, (ROW_W + 0) * LANES + l], p[blk, (ROW_W + 1) * LANES + l]
+        w2, w3 = p[blk, (ROW_W + 2) * LANES + l], p[blk, (ROW_W + 3) * LANES + l]
+        denom = (w0 * (g0x * g0x + g0y * g0y + g0z * g0z) + w1 * (g1x * g1x + g1y * g1y + g1z * g1z)
+                 + w2 * (g2x * g2x + g2y * g2y + g2z * g2z) + w3 * (g3x * g3x + g3y * g3y + g3z * g3z))
+        ok = denom > _F32_TINY
+        lam_k = num / (den * denom if ok else _F32_ONE)
+        nan = denom != denom
+        out[blk, OUT_W * LANES + l] = denom
+        s = -(lam_k if ok else (_F32_NAN if nan else _F32_ZERO))
+        out[blk, (OUT_D + 0) * LANES + l] = s * g0x
+        out[blk, (OUT_D + 1) * LANES + l] = s * g0y
+        out[blk, (OUT_D + 2) * LANES + l] = s * g0z
+        out[blk, (OUT_D + 3) * LANES + l] = s * g1x
+        out[blk, (OUT_D + 4) * LANES + l] = s * g1y
+        out[blk, (OUT_D + 5) * LANES + l] = s * g1z
+        out[blk, (OUT_D + 6) * LANES + l] = s * g2x
+        out[blk, (OUT_D + 7) * LANES + l] = s * g2y
+        out[blk, (OUT_D + 8) * LANES + l] = s * g2z
+        out[blk, (OUT_D + 9) * LANES + l] = s * g3x
+        out[blk, (OUT_D + 10) * LANES + l] = s * g3y
+        out[blk, (OUT_D + 11) * LANES + l] = s * g3z
+
+
+def _all_blocks_f32(corners, params, out, code):
+    """Every block's float32 lane loop (``code`` a literal: a split model); compiled code only."""
+    raise NotImplementedError("sim.ebm_blocked._all_blocks_f32 runs in compiled code only")
+
+
+@overload(_all_blocks_f32, prefer_literal=True, jit_options={"error_model": "numpy", "fastmath": {"contract"}})
+def _all_blocks_f32_variant(corners, params, out, code):
+    """fastmath: only "contract"."""
+    if not isinstance(code, types.Literal):
+        return None
+    c = int(code.literal_value)
+    if c not in (NEO_HOOKEAN, ANISOTROPIC_NEO_HOOKEAN):
+        raise TypingError(f"sim.ebm_blocked: no float32 kernel for material code {c} (split models only)")
+    fi = c == ANISOTROPIC_NEO_HOOKEAN
+
+    def impl(corners, params, out, code):
+        lanes = corners.shape[1] // N_OUT
+        for blk in range(corners.shape[0]):
+            _lanes_f32(fi, corners, params, out, blk, lanes)
+        of = out.reshape(out.size)
+        bad = 0
+        for blk in range(corners.shape[0]):
+            base = blk * (N_OUT * LANES) + OUT_W * LANES
+            for l in range(LANES):
+                d = of[base + l]
+                bad += 1 if d != d else 0
+        return bad
+
+    return impl
+
+
+@njit(cache=True)
+def load_displacements_f32(x, X, node_index, corners):
+    """Every tet's node displacements ``x - X`` (float32) into ``corners``, as :func:`load_corners`."""
+    xf = x.reshape(x.size)
+    Xf = X.reshape(X.size)
+    for blk in range(node_index.shape[0]):
+        for k in range(4):
+            for l in range(LANES):
+                i = node_index[blk, k * LANES + l]
+                corners[blk, (3 * k) * LANES + l] = np.float32(xf[i] - Xf[i])
+                corners[blk, (3 * k + 1) * LANES + l] = np.float32(xf[i + _Y] - Xf[i + _Y])
+                corners[blk, (3 * k + 2) * LANES + l] = np.float32(xf[i + _Z] - Xf[i + _Z])
+
+
+@njit(cache=True)
+def sweeps_f32(x, X, node_index, params, out, corners, free_nodes, free_start, free_slot, node_scale, code,
+               iterations):
+    """:func:`sweeps` with the float32 lane loop (``params``, ``out``, ``corners`` float32; ``corners`` rows hold
+    displacements; ``node_scale`` includes the inverse masses). The node sums, in tet order, and ``x`` are float64.
+    ``code`` (a split model) is compiled as a literal."""
+    literally(code)
+    load_displacements_f32(x, X, node_index, corners)
+    of = out.reshape(out.size)
+    cf = corners.reshape(corners.size)
+    for it in range(iterations):
+        bad = _all_blocks_f32(corners, params, out, code)
+        finite = bad == 0
+        for q in range(free_nodes.shape[0]):
+            ax = 0.0
+            ay = 0.0
+            az = 0.0
+            k0 = free_start[q]
+            k1 = free_start[q + 1]
+            for k in range(k0, k1):
+                o = free_slot[k]
+                ax += np.float64(of[o])
+                ay += np.float64(of[o + _L])
+                az += np.float64(of[o + _L2])
+            i = free_nodes[q]
+            sc = node_scale[i]
+            vx = x[i, 0] + ax * sc
+            vy = x[i, 1] + ay * sc
+            vz = x[i, 2] + az * sc
+            x[i, 0] = vx
+            x[i, 1] = vy
+            x[i, 2] = vz
+            ux = np.float32(vx - X[i, 0])
+            uy = np.float32(vy - X[i, 1])
+            uz = np.float32(vz - X[i, 2])
+            for k in range(k0, k1):
+                o = free_slot[k]
+                cf[o] = ux
+                cf[o + _L] = uy
+                cf[o + _L2] = uz
+            if not (abs(vx) < np.inf and abs(vy) < np.inf and abs(vz) < np.inf):
+                finite = False
+        if not finite:
+            return it
+    return iterations
