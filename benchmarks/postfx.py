@@ -23,7 +23,8 @@ time (OpenMP workers spinning while they wait count too); osmesa_pass_ms (and _r
 osmesa chain pass by pass ("<pass>[+fused effects] <width>x<height>", plus the DoF's CPU steps and
 the read-back), each draw waited for before and after, medians over the runs after the chains.
 Each figure is the median of several runs after one warm-up (compilation, context creation); every
-timed run starts after a 50 ms pause (PAUSE_S: numba's OpenMP workers stop spinning).
+timed chain starts after a 50 ms pause (PAUSE_S: numba's OpenMP workers stop spinning); the effects
+alone run back to back, each backend's runs together.
 """
 from __future__ import annotations
 
@@ -111,11 +112,6 @@ def _set_pause(seconds: float) -> None:
     PAUSE_S = seconds
 
 
-def _run(hdr, depth, lens, chain, backend, seed):
-    time.sleep(PAUSE_S)
-    return postfx.apply_chain(hdr, depth, chain, lens, backend=backend, seed=seed)
-
-
 def time_chains(hdr, depth, lens, chain, backends, repeats):
     """Whole-chain runs, the backends alternating so that both see the same machine load."""
     for backend in backends:  # warm-up: compilation, context creation, shader compilation
@@ -149,7 +145,8 @@ def profile_passes(hdr, depth, lens, chain, repeats):
 
 
 def time_effects(hdr, depth, lens, chain, backends, repeats):
-    """Each effect alone on the image it receives in the chain (the NumPy chain's intermediates)."""
+    """Each effect alone on the image it receives in the chain (the NumPy chain's intermediates), each
+    backend's runs back to back."""
     inputs, img = [], hdr
     for name, params in chain:
         inputs.append(img)
@@ -159,9 +156,9 @@ def time_effects(hdr, depth, lens, chain, backends, repeats):
         for backend in backends:
             postfx.apply_chain(img, depth, [(name, params)], lens, backend=backend)  # warm-up
         samples: dict = {b: [] for b in backends}
-        for r in range(repeats):
-            for backend in backends:
-                run = _run(img, depth, lens, [(name, params)], backend, r)
+        for backend in backends:  # each backend's runs back to back (warm), no pause: a pause would make
+            for r in range(repeats):  # these short runs pay numba's / llvmpipe's thread wake-up each time
+                run = postfx.apply_chain(img, depth, [(name, params)], lens, backend=backend, seed=r)
                 samples[backend].append(run.seconds[name])
         for backend in backends:
             ms[(name, backend)] = float(np.median(samples[backend])) * 1e3
