@@ -1,6 +1,7 @@
 """What rendering accuracy costs in time: error against a converged reference versus seconds per frame,
 for light samples (uniform and adaptive m(d)), supersampling, the diffuse estimator (Monte Carlo, and the ratio
-estimator: keys ending in ``_ratio``), the sample pattern (blue-noise offsets, the default, against
+estimator: keys ending in ``_ratio``), penumbra re-shading (16 samples where a pixel's first shadow rays
+disagree: ``_pen16``), the sample pattern (blue-noise offsets, the default, against
 white noise: keys ending in ``_white``) and the reflection cone (as many extra samples inside the
 specular cone's footprint, NumPy estimator: keys ending in ``_cone``), on scenes/liver_probe.toml with
 shadows and SSS.
@@ -46,8 +47,10 @@ from tissuerender.stages import StageRecorder  # noqa: E402
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "liver_probe.toml"
 
 
-def variant(scene, width, height, sampling, samples, ss, pattern="blue_noise", cone=False, estimator="mc"):
-    light = {"samples": samples, "sampling": sampling, "pattern": pattern, "estimator": estimator}
+def variant(scene, width, height, sampling, samples, ss, pattern="blue_noise", cone=False, estimator="mc",
+            penumbra=0):
+    light = {"samples": samples, "sampling": sampling, "pattern": pattern, "estimator": estimator,
+             "penumbra_samples": penumbra}
     if cone:  # as many samples again inside the reflection cone's footprint
         light.update(reflection_cone=True, cone_samples=samples)
     return dataclasses.replace(
@@ -97,16 +100,18 @@ def main() -> None:
     samples_list = (1, 4, 16) if args.quick else (1, 2, 4, 8, 12, 16, 32, 64)
     best = fastest = None
     print(f"{'setting':28s} {'seconds':>8s} {'FLIP':>8s} {'rel RMSE':>9s}")
-    settings = [(ss, sampling, m, "blue_noise", False, est) for est in ("mc", "ratio") for ss in (1, 2)
+    settings = [(ss, sampling, m, "blue_noise", False, est, 0) for est in ("mc", "ratio") for ss in (1, 2)
                 for sampling in ("uniform", "adaptive") for m in samples_list]
-    settings += [(ss, "uniform", m, "white_noise", False, "mc") for ss in (1, 2) for m in samples_list[:3]]
-    settings += [(ss, "uniform", m, "blue_noise", True, "mc") for ss in (1, 2) for m in samples_list[:3]]
-    for ss, sampling, m, pattern, cone, est in settings:
-        hdr, ldr, seconds = render(variant(base, width, height, sampling, m, ss, pattern, cone, est))
+    settings += [(2, sampling, m, "blue_noise", False, "ratio", 16) for sampling in ("uniform", "adaptive")
+                 for m in samples_list[:4]]
+    settings += [(ss, "uniform", m, "white_noise", False, "mc", 0) for ss in (1, 2) for m in samples_list[:3]]
+    settings += [(ss, "uniform", m, "blue_noise", True, "mc", 0) for ss in (1, 2) for m in samples_list[:3]]
+    for ss, sampling, m, pattern, cone, est, pen in settings:
+        hdr, ldr, seconds = render(variant(base, width, height, sampling, m, ss, pattern, cone, est, pen))
         mean_flip, _ = flip(ref_ldr, ldr)
         rel = float(np.sqrt(np.mean((hdr - ref_hdr) ** 2)) / max(np.sqrt(np.mean(ref_hdr ** 2)), 1e-30))
         key = (f"{sampling}_m{m}_ss{ss}" + ("_white" if pattern == "white_noise" else "") + ("_cone" if cone else "")
-               + ("_ratio" if est == "ratio" else ""))
+               + ("_ratio" if est == "ratio" else "") + (f"_pen{pen}" if pen else ""))
         result[key] = {"seconds": round(seconds, 3), "flip": round(mean_flip, 5), "rel_rmse": round(rel, 5)}
         print(f"{key:28s} {seconds:8.3f} {mean_flip:8.4f} {rel:9.4f}")
         if seconds <= 0.5 and (best is None or mean_flip < best[0]):

@@ -151,7 +151,8 @@ def light_for(scene: Scene):
                      position=lt.position, normal=lt.normal, up=lt.up, offset=tuple(lt.offset),
                      importance=tuple((tuple(k.centre), k.radius, k.multiplier) for k in lt.importance),
                      reflection_cone=lt.reflection_cone, cone_samples=lt.cone_samples,
-                     sampling=lt.sampling, samples=lt.samples, pattern=lt.pattern, estimator=lt.estimator)
+                     sampling=lt.sampling, samples=lt.samples, pattern=lt.pattern, estimator=lt.estimator,
+                     penumbra_samples=lt.penumbra_samples)
 
 
 def settings_for(scene: Scene, seed: int):

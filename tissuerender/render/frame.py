@@ -66,6 +66,7 @@ class AreaLight:
     cone_samples: int = 16
     pattern: str = "blue_noise"  # per-pixel sample offsets: "blue_noise" (tiled, bluenoise.py) or "white_noise"
     estimator: str = "mc"  # diffuse lobe: "mc" (sum of f V A/m) or "ratio" (closed-form unshadowed x sampled ratio)
+    penumbra_samples: int = 0  # > 0: pixels whose shadow rays disagree (and their neighbours) are re-shaded with this many
 
 
 @dataclass
@@ -473,11 +474,31 @@ def material_tables(optics):
                 plastic_t=np.ascontiguousarray(np.stack(tables)))
 
 
+def _penumbra_points(bits, pixel, shape):
+    """Points to re-shade: every sample of a pixel whose first shadow rays disagree (bits 3 over the pixel's
+    supersamples) or of one of its 8 neighbours (a penumbra the first rays happened to miss is often next
+    to one they caught)."""
+    from tissuerender.render.shade_kernel import pixel_or
+
+    mixed = np.zeros(shape[0] * shape[1], np.uint8)
+    pixel_or(np.ascontiguousarray(pixel, np.int64), bits, mixed)
+    grid = (mixed == 3).reshape(shape)
+    near = grid.copy()
+    near[1:] |= grid[:-1]
+    near[:-1] |= grid[1:]
+    wide = near.copy()
+    wide[:, 1:] |= near[:, :-1]
+    wide[:, :-1] |= near[:, 1:]
+    return np.flatnonzero(wide.ravel()[pixel])
+
+
 def _shade_fused(pos, n, wo, albedo, alpha, mat, thickness, rough_factor, optics, m, rotation, stride, phase, centre,
-                 ln, eu, ev, rays, eps, radiance, rec, ratio=False):
+                 ln, eu, ev, rays, eps, radiance, rec, ratio=False, penumbra_samples=0, pixel=None, shape=None):
     """Direct light of every point through the numba passes of ``shade_kernel``, added to ``radiance``;
-    ``rays`` (the frame's ray scene) None means no shadows."""
-    from tissuerender.render.shade_kernel import cosine_integrals, light_rays, shade_direct
+    ``rays`` (the frame's ray scene) None means no shadows. ``penumbra_samples`` > 0 (with shadows): points
+    of pixels (``pixel``: each point's index in the output image of ``shape``) whose shadow rays disagree,
+    and of their neighbours, are shaded again with that many samples, which replace the first ones."""
+    from tissuerender.render.shade_kernel import cosine_integrals, light_rays, shade_direct, visibility_bits
 
     k = pos.shape[0]
     if k == 0:
@@ -502,12 +523,43 @@ def _shade_fused(pos, n, wo, albedo, alpha, mat, thickness, rough_factor, optics
     if ratio:
         cosine_integrals(pos, n, centre, ln, eu, ev, unshadowed)
     has_sss = thickness is not None
-    shade_direct(pos, n, wo, np.ascontiguousarray(albedo, dtype=f64), np.ascontiguousarray(alpha, dtype=f64), mat,
-                 np.ascontiguousarray(thickness, dtype=f64) if has_sss else np.zeros(1), has_sss,
-                 np.ascontiguousarray(rough_factor, dtype=f64) if rough_factor is not None else np.ones(k), m,
-                 rotation, int(stride), phase, centre, ln, eu, ev, float(eps), rays is not None, ray_offsets, occluded,
-                 t["kind"], t["f0"], t["k_sss"], t["sigma"], t["sss_colour"], t["coat"], t["coat_sigma"], t["plastic"],
-                 t["plastic_t"], bool(ratio), unshadowed, radiance)
+    albedo = np.ascontiguousarray(albedo, dtype=f64)
+    alpha = np.ascontiguousarray(alpha, dtype=f64)
+    thickness = np.ascontiguousarray(thickness, dtype=f64) if has_sss else np.zeros(1)
+    rough_factor = np.ascontiguousarray(rough_factor, dtype=f64) if rough_factor is not None else np.ones(k)
+    redo = np.zeros(0, np.int64)
+    if rays is not None and penumbra_samples > 0:
+        with rec.run("shadow_rays"):
+            bits = np.empty(k, np.uint8)
+            visibility_bits(pos, n, m, rotation, int(stride), phase, centre, ln, eu, ev, float(eps), ray_offsets,
+                            occluded, bits)
+            redo = _penumbra_points(bits, pixel, shape)
+
+    def shade(sel, m_sel, offsets, occ, out):
+        shade_direct(pos[sel], n[sel], wo[sel], albedo[sel], alpha[sel], mat[sel],
+                     thickness[sel] if has_sss else thickness, has_sss, rough_factor[sel], m_sel, rotation[sel],
+                     int(stride), phase[sel], centre, ln, eu, ev, float(eps), rays is not None, offsets, occ,
+                     t["kind"], t["f0"], t["k_sss"], t["sigma"], t["sss_colour"], t["coat"], t["coat_sigma"],
+                     t["plastic"], t["plastic_t"], bool(ratio), unshadowed[sel] if ratio else unshadowed, out)
+
+    before = radiance[redo]  # (a copy) what the penumbra points held before their first estimate
+    shade(slice(None), m, ray_offsets, occluded, radiance)
+    if redo.size == 0:
+        return
+    # the penumbra points again, with their own sample sets of penumbra_samples (at least m) each
+    m_redo = np.maximum(m[redo], int(penumbra_samples))
+    offsets = np.zeros(redo.size, np.int64)
+    np.cumsum(m_redo[:-1], out=offsets[1:])
+    total = int(offsets[-1] + m_redo[-1])
+    with rec.run("shadow_rays"):
+        origins, dirs, tfar = (np.empty((total, 3), np.float32), np.empty((total, 3), np.float32),
+                               np.empty(total, np.float32))
+        light_rays(pos[redo], n[redo], m_redo, rotation[redo], int(stride), phase[redo], centre, ln, eu, ev, float(eps),
+                   offsets, origins, dirs, tfar)
+        occ = np.ascontiguousarray(rays.occluded_rays(origins, dirs, tfar), dtype=np.bool_)
+    out = before.copy()
+    shade(redo, m_redo, offsets, occ, out)
+    radiance[redo] = out
 
 
 def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSettings,
@@ -577,9 +629,9 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
     fused = settings.fused and not light.reflection_cone
     if light.estimator not in ("mc", "ratio"):
         raise ValueError(f"light estimator must be 'mc' or 'ratio', found {light.estimator!r}")
-    if light.estimator == "ratio" and not fused:
-        raise NotImplementedError("light.estimator = \"ratio\" runs in the numba shading pass only, which the "
-                                  "reflection cone (NumPy estimator) does not use")
+    if (light.estimator == "ratio" or light.penumbra_samples > 0) and not fused:
+        raise NotImplementedError("light.estimator = \"ratio\" and light.penumbra_samples run in the numba shading "
+                                  "pass only, which the reflection cone (NumPy estimator) does not use")
     if settings.sss and not fused:
         k_sss = np.array([o.k_sss for o in optics], float)[mat]
         sigma = np.array([o.sigma for o in optics], float).reshape(-1, 3)[mat]
@@ -646,7 +698,8 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         if fused:
             _shade_fused(pos, n, wo, albedo, alpha, mat, thickness, rough_factor, optics, m, rotation, stride, phase,
                          centre, ln, eu, ev, bvh if settings.shadows else None, eps, radiance, rec,
-                         light.estimator == "ratio")
+                         light.estimator == "ratio", int(light.penumbra_samples), (jj // ss) * camera.width + ii // ss,
+                         (int(camera.height), int(camera.width)))
         for s in range(int(m.max()) if m.size and not fused else 0):
             act = np.flatnonzero(s < m)
             q, wi, weight = light_sample(s, m[act], rotation[act], pos[act], centre, ln, eu, ev, stride, phase[act])

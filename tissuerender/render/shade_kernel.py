@@ -204,6 +204,26 @@ def cosine_integrals(pos, nrm, centre, ln, eu, ev, out):
 
 
 @njit(cache=True, parallel=True)
+def visibility_bits(pos, nrm, m, rotation, stride, phase, centre, ln, eu, ev, eps, ray_offsets, occluded, bits):
+    """Per point, over the samples that can contribute: bit 1 if one is occluded, bit 2 if one is visible
+    (3: the point sees part of the light, a penumbra)."""
+    for i in prange(pos.shape[0]):
+        b = 0
+        for s in range(m[i]):
+            qx, qy, qz = _sample_point(i, s, m[i], rotation, stride, phase, centre, eu, ev)
+            if _segment(pos[i, 0], pos[i, 1], pos[i, 2], nrm[i, 0], nrm[i, 1], nrm[i, 2], qx, qy, qz, ln, eps)[0]:
+                b |= 1 if occluded[ray_offsets[i] + s] else 2
+        bits[i] = b
+
+
+@njit(cache=True)
+def pixel_or(pixel, bits, out):
+    """``out[pixel[i]] |= bits[i]`` (the supersamples of a pixel are few: a serial pass)."""
+    for i in range(pixel.shape[0]):
+        out[pixel[i]] |= bits[i]
+
+
+@njit(cache=True, parallel=True)
 def light_rays(pos, nrm, m, rotation, stride, phase, centre, ln, eu, ev, eps, ray_offsets, origins, dirs, tfar):
     """The shadow rays of every sample: sample s of point i is ray ``ray_offsets[i] + s`` (the exclusive
     prefix sum of m; float32 origin, unit direction, length: the form the ray backends take). A sample

@@ -262,13 +262,24 @@ class Light(Strict):
     reflection_cone: bool = False
     cone_samples: Annotated[int, Field(ge=1, le=4096)] = 16
     pattern: Literal["blue_noise", "white_noise"] = "blue_noise"
-    estimator: Literal["mc", "ratio"] = "mc"
+    estimator: Literal["mc", "ratio"] = "ratio"
+    penumbra_samples: Annotated[int, Field(ge=0, le=4096)] = 0
+
+    @model_validator(mode="before")
+    @classmethod
+    def _estimator_default(cls, data):
+        # the ratio estimator is the default, except with the reflection cone (NumPy path), which has none
+        if isinstance(data, dict) and data.get("reflection_cone") is True and "estimator" not in data:
+            data = {**data, "estimator": "mc"}
+        return data
 
     @model_validator(mode="after")
     def _estimator(self):
-        if self.estimator == "ratio" and self.reflection_cone:
-            raise ValueError("estimator = \"ratio\" runs in the numba shading pass, which the reflection cone "
-                             "does not use: set reflection_cone = false or estimator = \"mc\"")
+        for key, on in (("estimator = \"ratio\"", self.estimator == "ratio"),
+                        ("penumbra_samples > 0", self.penumbra_samples > 0)):
+            if on and self.reflection_cone:
+                raise ValueError(f"{key} runs in the numba shading pass, which the reflection cone does not use: "
+                                 "set reflection_cone = false")
         return self
 
     @model_validator(mode="after")
