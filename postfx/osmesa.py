@@ -329,38 +329,6 @@ def _half(ctx, tex, threshold=None):
     return ctx.draw("bright_half", {"img": tex}, uniforms, w, h)
 
 
-class _Pending:
-    """An image not drawn yet: ``img + k up(low)`` (a lens flare whose add waits for the bloom after it)."""
-
-    def __init__(self, img, low, k):
-        self.img, self.low, self.k = img, low, float(k)
-
-    def GetWidth(self):
-        return self.img.GetWidth()
-
-    def GetHeight(self):
-        return self.img.GetHeight()
-
-
-def _bloom_after_flare(ctx, pending: _Pending, params, ep):
-    """The bloom of ``pending.img + pending.k up(pending.low)`` and that image plus the glow, without
-    drawing the flare's sum at full resolution: the bright pass and the final add evaluate it."""
-    from postfx import effects
-
-    img, pend = pending.img, pending.low
-    w, h = (img.GetWidth() + 1) // 2, (img.GetHeight() + 1) // 2
-    half = ctx.draw("bright_half_pending", {"img": img, "pend": pend},
-                    {"kp": pending.k, "threshold": float(params.threshold), "luma": effects.LUMA,
-                     "out_size": IVec2((w, h))}, w, h, linear={"pend": False})
-    low = _gaussian(ctx, half, 0.5 * params.sigma_px)
-    ctx.release(half)
-    out = ctx.draw("add_upsampled2", {"img": img, "pend": pend, "low": low, **ep.inputs},
-                   {"kp": pending.k, "k": float(params.intensity), **ep.uniforms}, img.GetWidth(), img.GetHeight(),
-                   epilogue=ep.names, linear={"pend": False, "low": False})
-    ctx.release(low, pend)
-    return out
-
-
 def _add_upsampled(ctx, tex, low, k, ep):
     out = ctx.draw("add_upsampled", {"img": tex, "low": low, **ep.inputs}, {"k": float(k), **ep.uniforms},
                    tex.GetWidth(), tex.GetHeight(), epilogue=ep.names, linear={"low": False})
@@ -552,17 +520,11 @@ def _depth_of_field(ctx, tex, depth, params, lens, ep, host=None):
 
 
 def effect_on_gpu(ctx: Context, name: str, tex, depth: np.ndarray, params, lens, seed: int = 0, epilogue=(),
-                  host=None, defer_add: bool = False):
+                  host=None):
     """One effect from texture to texture (the input stays valid; the caller releases it), followed by
     the pointwise effects ``epilogue`` (a list of ``(name, params)``) drawn in its last pass. ``tex`` may
-    be None for the depth of field, which then reads the frame ``host`` from the CPU. With ``defer_add``
-    a lens flare returns a ``_Pending`` (its input plus the flare, not drawn), which only a bloom takes."""
+    be None for the depth of field, which then reads the frame ``host`` from the CPU."""
     from postfx import lens_flare
-
-    if isinstance(tex, _Pending):
-        if name != "bloom":
-            raise ValueError("a pending lens flare add is for a bloom")
-        return _bloom_after_flare(ctx, tex, params, _Epilogue(ctx, epilogue, tex.GetWidth(), tex.GetHeight(), seed))
 
     if name == "depth_of_field":
         return _depth_of_field(ctx, tex, depth, params, lens, _Epilogue(ctx, epilogue, *(
@@ -598,8 +560,6 @@ def effect_on_gpu(ctx: Context, name: str, tex, depth: np.ndarray, params, lens,
             blurred = _gaussian(ctx, low, 0.5 * params.blur_px)
             ctx.release(low)
             low = blurred
-        if defer_add and not ep.names:
-            return _Pending(tex, low, params.intensity)
         return _add_upsampled(ctx, tex, low, params.intensity, ep)
     if name == "chromatic_aberration":
         scale = [1.0 / (1.0 + k) if k > -1.0 else 1e6 for k in (params.strength_r, params.strength_g, params.strength_b)]
@@ -634,19 +594,14 @@ def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fu
     tex = None if groups and groups[0][0][0] == "depth_of_field" else ctx.upload(hdr)
     uploaded = tex
     seconds = {}
-    for i, group in enumerate(groups):
+    for group in groups:
         (name, params), rest = group[0], group[1:]
-        # a lens flare right before a bloom leaves its add to the bloom's passes (one full-resolution
-        # pass less); its time is then in the bloom's
-        defer = fuse and name == "lens_flare" and not rest and i + 1 < len(groups) and groups[i + 1][0][0] == "bloom"
         t0 = time.perf_counter()
-        out = effect_on_gpu(ctx, name, tex, depth, params, lens, seed, epilogue=rest, host=hdr, defer_add=defer)
+        out = effect_on_gpu(ctx, name, tex, depth, params, lens, seed, epilogue=rest, host=hdr)
         ctx.finish()
         seconds["+".join(n for n, _ in group)] = time.perf_counter() - t0
-        if not isinstance(out, _Pending):  # a pending add keeps its input alive
-            done = tex.img if isinstance(tex, _Pending) else tex
-            if done is not uploaded:
-                ctx.release(done)
+        if tex is not uploaded:
+            ctx.release(tex)
         tex = out
     image = ctx.download(tex)
     if tex is not uploaded:

@@ -309,40 +309,6 @@ void main() {
   gl_FragData[0] = vec4(acc * 0.25, 1.0);
 }
 """,
-    # bright_half of img + kp up(pend): the lens flare's add, left pending for the bloom that follows it
-    # (the same expression as add_upsampled at each of the four pixels), so that the flare needs no
-    # full-resolution pass of its own
-    "bright_half_pending": _HEADER + "uniform sampler2D img;\nuniform sampler2D pend;\nuniform float kp;\n"
-    "uniform float threshold;\nuniform vec3 luma;\nuniform ivec2 out_size;\n" + """
-vec3 part(vec3 x) {
-  float l = dot(luma, x);
-  return x * (max(l - threshold, 0.0) / max(l, 1e-12));
-}
-vec3 at(ivec2 q, vec2 inv) {
-  vec3 up = texture(pend, (vec2(q) + 0.5) * 0.5 / vec2(textureSize(pend, 0))).rgb;
-  return texture(img, (vec2(q) + 0.5) * inv).rgb + kp * up;
-}
-void main() {
-  ivec2 size = textureSize(img, 0);
-  vec2 inv = 1.0 / vec2(size);
-""" + _OUT_PIXEL + """  ivec2 q0 = 2 * p, q1 = min(2 * p + 1, size - 1);
-  vec3 acc = part(at(q0, inv));
-  acc += part(at(ivec2(q1.x, q0.y), inv));
-  acc += part(at(ivec2(q0.x, q1.y), inv));
-  acc += part(at(q1, inv));
-  gl_FragData[0] = vec4(acc * 0.25, 1.0);
-}
-""",
-    # (img + kp up(pend)) + k up(low): the pending flare and the bloom added in one pass, in NumPy's order
-    "add_upsampled2": _HEADER + "uniform sampler2D img;\nuniform sampler2D pend;\nuniform sampler2D low;\n"
-    "uniform float kp;\nuniform float k;\n//EPILOGUE::Dec\n" + """
-void main() {
-""" + _PIXEL + """  vec3 up1 = texture(pend, (vec2(p) + 0.5) * 0.5 / vec2(textureSize(pend, 0))).rgb;
-  vec3 x = texture(img, texCoord).rgb + kp * up1;
-  vec3 up2 = texture(low, (vec2(p) + 0.5) * 0.5 / vec2(textureSize(low, 0))).rgb;
-  gl_FragData[0] = vec4(post(x + k * up2, p, size), 1.0);
-}
-""",
     # img + k up(low), low at half resolution read bilinearly at ((i + 1/2) / 2, (j + 1/2) / 2)
     "add_upsampled": _HEADER + "uniform sampler2D img;\nuniform sampler2D low;\nuniform float k;\n"
     "//EPILOGUE::Dec\n" + """

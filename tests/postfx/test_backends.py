@@ -216,24 +216,3 @@ def test_dof_after_another_effect_builds_its_source_on_the_gl_side():
     ref = postfx.apply_chain(hdr, depth, chain, LENS, backend="numpy").image
     assert np.abs(np.clip(fused, 0.0, 1.0) - ref).max() <= 1e-5
 
-
-@needs_osmesa
-@pytest.mark.osmesa
-def test_lens_flare_before_bloom_leaves_its_add_to_the_bloom():
-    """A flare right before a bloom is not drawn at full resolution on its own: the bloom's bright pass
-    and its final add evaluate img + k up(flare). Same result as the separate passes and as NumPy."""
-    hdr, depth = _inputs()
-    chain = [("lens_flare", CASES["lens_flare"]), ("bloom", CASES["bloom"]), ("tonemap", Tonemap())]
-    ctx = osmesa.Context.get()
-    ctx.profile = {}
-    try:
-        fused, _, _ = osmesa.run_chain(hdr, depth, chain, LENS)
-    finally:
-        passes, ctx.profile = ctx.profile, None
-    assert any(k.startswith("add_upsampled2+tonemap ") for k in passes)
-    assert not any(k.startswith("add_upsampled ") for k in passes)
-    separate, _, _ = osmesa.run_chain(hdr, depth, chain, LENS, fuse=False)
-    assert np.abs(fused - separate).max() <= 1e-6
-    ref = postfx.apply_chain(hdr, depth, chain, LENS, backend="numpy").image
-    assert np.abs(postfx.to_uint8(ref).astype(int) - postfx.to_uint8(np.clip(fused, 0.0, 1.0)).astype(int)).max() <= 2
-    assert np.abs(np.clip(fused, 0.0, 1.0) - ref).max() < 1e-3
