@@ -65,7 +65,9 @@ class AreaLight:
     reflection_cone: bool = False  # extra samples in the part of the light inside the reflection cone
     cone_samples: int = 16
     pattern: str = "blue_noise"  # per-pixel sample offsets: "blue_noise" (tiled, bluenoise.py) or "white_noise"
-    estimator: str = "mc"  # diffuse lobe: "mc" (sum of f V A/m) or "ratio" (closed-form unshadowed x sampled ratio)
+    # diffuse lobe: "mc" (sum of f V A/m) or "ratio" (closed-form unshadowed x sampled ratio); scenes default to
+    # "ratio" (tissuerender.scene.schema.Light), this low-level default stays the unbiased estimator
+    estimator: str = "mc"
     penumbra_samples: int = 0  # > 0: pixels whose shadow rays disagree (and their neighbours) are re-shaded with this many
 
 
