@@ -26,19 +26,9 @@ def _radial_resample(img, cx, cy, scales):
         for i in range(w):
             x = i + 0.5
             for c in range(nc):
-                sx = cx + (x - cx) * scales[c]
-                sy = cy + (y - cy) * scales[c]
-                fx = min(max(sx - 0.5, 0.0), w - 1.0)
-                fy = min(max(sy - 0.5, 0.0), h - 1.0)
-                x0 = min(int(fx), w - 2) if w > 1 else 0
-                y0 = min(int(fy), h - 2) if h > 1 else 0
-                tx = fx - x0
-                ty = fy - y0
-                x1 = min(x0 + 1, w - 1)
-                y1 = min(y0 + 1, h - 1)
-                top = img[y0, x0, c] * (1 - tx) + img[y0, x1, c] * tx
-                bottom = img[y1, x0, c] * (1 - tx) + img[y1, x1, c] * tx
-                out[j, i, c] = top * (1 - ty) + bottom * ty
+                sx = np.float32(cx + (x - cx) * scales[c])
+                sy = np.float32(cy + (y - cy) * scales[c])
+                out[j, i, c] = bilinear_clamped(img, c, sx, sy)
     return out
 
 

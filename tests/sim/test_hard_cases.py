@@ -134,18 +134,23 @@ def test_stiffness_ratio_1e4_between_neighbours(integrator):
     assert strain[~stiff].mean() > 1e-3
 
 
-@pytest.mark.parametrize("integrator", ["xpbd", "reference"])
-def test_sliver_tets_stay_bounded(integrator):
+def _sliver_beam():
+    """The stiff beam with one cross-section moved almost onto the next: the tets between them become
+    slivers (aspect ratio ~ 100). Returns the rest points and the model (x = 0 face fixed, gravity)."""
     mesh, _ = _beam()
     points = mesh.points.copy()
-    # flatten a column of interior nodes' neighbourhoods: move nodes of one cross-section almost onto
-    # the next one, which turns the tets between them into slivers (aspect ratio ~ 100)
     section = np.flatnonzero(np.isclose(points[:, 0], 0.2))
     points[section, 0] = 0.2 + 0.05 * 0.99
     sliver_mesh = TetMesh(points=points, tets=mesh.tets, source="test:slivers")
     model = Model.from_mesh(sliver_mesh, E=1e6, nu=0.45, density=1000.0, constitutive="stable_neo_hookean",
                             gravity=np.array([0.0, 0.0, -9.81]))
     model.fixed[select.nodes_on_side(points, 0, "min")] = True
+    return points, model
+
+
+@pytest.mark.parametrize("integrator", ["xpbd", "reference"])
+def test_sliver_tets_stay_bounded(integrator):
+    points, model = _sliver_beam()
     assert (model.volume / model.volume.max()).min() < 0.02
     if integrator == "xpbd":
         state = _run(XPBD(model, {"substeps": 10, "iterations": 20, "damping": 10.0}), model, 0.01, 200)
@@ -268,14 +273,7 @@ def test_zhang_integrators_with_stiffness_ratio_1e4_fail_clearly(integrator):
 def test_zhang_integrators_on_sliver_tets(integrator):
     from sim.integrators import SimulationDiverged
 
-    mesh, _ = _beam()
-    points = mesh.points.copy()
-    section = np.flatnonzero(np.isclose(points[:, 0], 0.2))
-    points[section, 0] = 0.2 + 0.05 * 0.99
-    sliver_mesh = TetMesh(points=points, tets=mesh.tets, source="test:slivers")
-    model = Model.from_mesh(sliver_mesh, E=1e6, nu=0.45, density=1000.0, constitutive="stable_neo_hookean",
-                            gravity=np.array([0.0, 0.0, -9.81]))
-    model.fixed[select.nodes_on_side(points, 0, "min")] = True
+    points, model = _sliver_beam()
     if integrator == "cnn":
         # the slivers' critical step is 8e-6 s: at 1 ms they fold within a few steps, and the CNN reports it
         with pytest.raises(SimulationDiverged, match=r"cnn: the integration diverged: \d+ elements inverted"):
