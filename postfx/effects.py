@@ -384,13 +384,6 @@ def sharpen(img: np.ndarray, p: Sharpen) -> np.ndarray:
     return _convolve_columns(_convolve_rows(img, w), w, img, np.float32(p.amount), True)
 
 
-def bright_part(img: np.ndarray, threshold: float) -> np.ndarray:
-    """The part of each pixel above ``threshold`` in Rec. 709 luminance, keeping its colour."""
-    lum = img @ np.array(LUMA, np.float32)
-    scale = np.maximum(lum - np.float32(threshold), 0.0) / np.maximum(lum, np.float32(1e-12))
-    return (img * scale[..., None]).astype(np.float32)
-
-
 @njit(cache=True)  # under a millisecond: a parallel region would cost more to wake
 def _bright_half(img, threshold, l0, l1, l2):
     """Half resolution (ceil(H/2), ceil(W/2)): the mean over each 2x2 block (indices clamped at an odd

@@ -304,11 +304,13 @@ def irradiance(pos: np.ndarray, n: np.ndarray, light: AreaLight, camera: Camera,
 def unshadowed_cosine_integral(pos: np.ndarray, n: np.ndarray, centre, ln, eu, ev) -> np.ndarray:
     """Closed-form ``int_light (n.wi) cos(theta_l) / r^2 dA`` [sr] per point (horizon-clipped polygon,
     ``shade_kernel.rect_cosine_integral``): the irradiance per unit radiance without occlusion."""
-    from tissuerender.render.shade_kernel import rect_cosine_integral
+    from tissuerender.render.shade_kernel import cosine_integrals
 
-    c, l, u, v = (np.asarray(x, np.float64) for x in (centre, ln, eu, ev))
-    return np.array([rect_cosine_integral(p[0], p[1], p[2], q[0], q[1], q[2], c, l, u, v)
-                     for p, q in zip(np.asarray(pos, float), np.asarray(n, float))])
+    pos = np.ascontiguousarray(pos, np.float64).reshape(-1, 3)
+    out = np.empty(pos.shape[0])
+    cosine_integrals(pos, np.ascontiguousarray(n, np.float64).reshape(-1, 3),
+                     *(np.ascontiguousarray(x, np.float64) for x in (centre, ln, eu, ev)), out)
+    return out
 
 
 def ratio_scale(pos, n, centre, ln, eu, ev, den):
