@@ -24,6 +24,7 @@ term C exp(-sigma T) of Qian eq. 6.8.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 
@@ -166,3 +167,28 @@ OPTICS: dict[str, OpticalMaterial] = {
     "plastic": OpticalMaterial(albedo=(0.55, 0.55, 0.58), roughness=0.25, ior=1.49, k_sss=0.0,
                                sigma=(1.0, 1.0, 1.0), sss_colour=(0.0, 0.0, 0.0), bsdf="roughplastic"),
 }
+
+
+# The optical keys a scene (``[objects.optics]``) or ``tissuerender lookdev --set`` may override.
+OVERRIDABLE = ("albedo", "roughness", "ior", "k_sss", "sigma", "sss_colour")
+
+
+def with_overrides(optics: OpticalMaterial, overrides: dict) -> OpticalMaterial:
+    """``optics`` with some of its :data:`OVERRIDABLE` values replaced (tuples for the RGB ones).
+
+    Raises ``ValueError`` naming the key for a value the material does not use: a layered material's
+    diffuse colour comes from its layer stack (``albedo`` would be ignored), and the ``roughplastic``
+    reference has no subsurface term (``k_sss``, ``sigma``, ``sss_colour``). Ranges are the scene
+    schema's business (``tissuerender.scene.schema.OpticsOverride``)."""
+    unknown = sorted(set(overrides) - set(OVERRIDABLE))
+    if unknown:
+        raise ValueError(f"{unknown[0]}: not an optical key; expected one of {', '.join(OVERRIDABLE)}")
+    if optics.layers is not None and "albedo" in overrides:
+        raise ValueError("albedo: a layered (mucosa) material takes its diffuse colour from its layer stack; "
+                         "override roughness, ior or the subsurface keys instead")
+    if optics.bsdf == "roughplastic":
+        for key in ("k_sss", "sigma", "sss_colour"):
+            if key in overrides:
+                raise ValueError(f"{key}: the plastic reference (roughplastic) has no subsurface term")
+    values = {k: tuple(float(c) for c in v) if isinstance(v, (list, tuple)) else float(v) for k, v in overrides.items()}
+    return dataclasses.replace(optics, **values)

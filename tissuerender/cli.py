@@ -58,9 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("validate", help="check scene files without rendering")
     p.add_argument("scenes", nargs="+")
     p.set_defaults(func=_cmd_validate)
-    from tissuerender import golden
+    from tissuerender import golden, lookdev
 
     golden.add_cli(sub)
+    lookdev.add_cli(sub)
     return parser
 
 

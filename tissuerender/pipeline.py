@@ -184,6 +184,16 @@ def tool_surface(tool, t: float):
     return np.asarray(m.vertices) + centre, np.asarray(m.faces, dtype=np.int32), np.asarray(m.vertex_normals)
 
 
+def optics_for(spec):
+    """The object's optics when its scene overrides some (``[objects.optics]``), else None (the preset's)."""
+    if spec.optics is None:
+        return None
+    import materials
+    from materials.optics import with_overrides
+
+    return with_overrides(materials.get_preset(spec.material).optics, spec.optics.values())
+
+
 def render_objects(world: World, scene: Scene, t: float, plan: Plan, recorder: StageRecorder, previous=None):
     from sim.mesh.surface import vertex_normals
 
@@ -206,13 +216,13 @@ def render_objects(world: World, scene: Scene, t: float, plan: Plan, recorder: S
         positions[body.spec.name] = pts
         objects.append(RenderObject(points=pts, triangles=body.surface.triangles, normals=normals,
                                     uv=body.surface.uv, material=body.spec.material, object_id=oid,
-                                    velocity=velocity))
+                                    velocity=velocity, optics=optics_for(body.spec)))
         oid += 1
     for s in world.surfaces:
         vel = np.zeros_like(s.surface.points) if "velocity_channel" in plan else None
         objects.append(RenderObject(points=s.surface.points, triangles=s.surface.triangles,
                                     normals=s.surface.normals, uv=s.surface.uv, material=s.spec.material,
-                                    object_id=oid, velocity=vel))
+                                    object_id=oid, velocity=vel, optics=optics_for(s.spec)))
         oid += 1
     for tool in scene.tools:
         if tool.visible:
@@ -367,6 +377,13 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
 def render_image(scene: Scene, seed: int | None = None, frame: int = 1, resolution: tuple[int, int] | None = None,
                  recorder: StageRecorder | None = None) -> np.ndarray:
     """One frame as display-referred uint8 RGB (H, W, 3), for golden-image checks and lookdev."""
+    return render_frame_arrays(scene, seed, frame, resolution, recorder)[0]
+
+
+def render_frame_arrays(scene: Scene, seed: int | None = None, frame: int = 1,
+                        resolution: tuple[int, int] | None = None, recorder: StageRecorder | None = None):
+    """One frame: (display uint8 RGB (H, W, 3), the renderer's ``FrameResult``: linear HDR, view depth and
+    the G-buffer, as the post-effects receive them)."""
     import postfx
 
     plan = make_plan(scene)
@@ -379,7 +396,7 @@ def render_image(scene: Scene, seed: int | None = None, frame: int = 1, resoluti
     s = frame_seed(scene, frame, seed)
     result, _ = render_hdr(world, scene, plan, recorder, (frame - 1) / scene.output.fps, s, w, h)
     image, _ = postprocess(scene, result.hdr, result.depth, recorder, s, w, h)
-    return postfx.to_uint8(image)
+    return postfx.to_uint8(image), result
 
 
 class _progress:

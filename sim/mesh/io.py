@@ -117,7 +117,9 @@ def _file_normals(path: Path, tm, n: int) -> np.ndarray | None:
     normals = None
     if suffix == ".ply":
         data = tm.metadata.get("_ply_raw", {}).get("vertex", {}).get("data", {})
-        if all(k in data for k in ("nx", "ny", "nz")):
+        # a dict of columns (ASCII PLY) or a structured array (binary PLY, e.g. written by trimesh)
+        names = data.dtype.names or () if isinstance(data, np.ndarray) else tuple(data)
+        if all(k in names for k in ("nx", "ny", "nz")):
             normals = np.concatenate([np.asarray(data[k], dtype=np.float64).reshape(-1, 1) for k in ("nx", "ny", "nz")], 1)
     elif suffix == ".obj":
         vn, assigned = [], {}

@@ -80,6 +80,7 @@ class RenderObject:
     material: str
     object_id: int = 0
     velocity: np.ndarray | None = None
+    optics: object | None = None  # a materials.optics.OpticalMaterial replacing the preset's (scene overrides)
 
 
 @dataclass
@@ -573,7 +574,8 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
     ss = int(settings.supersampling)
     W, H = int(camera.width) * ss, int(camera.height) * ss
     P, T, N, V, tri_mat, names = _merge(objects)
-    optics = [materials.get_preset(name).optics for name in names]
+    optics = [o.optics if getattr(o, "optics", None) is not None else materials.get_preset(name).optics
+              for o, name in zip(objects, names)]
     gbuffer: dict = {}
     with rec.run("raster"):
         P, N, V, T, tri_mat = clip_near(P, N, V, T, tri_mat, camera)
@@ -585,6 +587,9 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
                                                  np.array([o.roughness for o in optics], float),
                                                  np.array([o.f0 for o in optics], float))
         gbuffer.update(depth=depth, position=pos, normal=n, material_id=mat, albedo=albedo, roughness=alpha)
+        object_index = np.full((H, W), -1, np.int16)  # which of ``objects`` each (super)sample shows; -1: none
+        object_index[jj, ii] = mat
+        gbuffer["object_index"] = object_index
         rough_factor = None
         if settings.motion or any(o.layers is not None and o.layers.texture_seed is not None for o in optics):
             corner, b = T[tri], bary[jj, ii]

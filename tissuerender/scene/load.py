@@ -153,6 +153,13 @@ def load_scene(path) -> Scene:
     """Read and validate a scene file; raise :class:`SceneError` with the key path on any problem."""
     path = Path(path)
     data = read_toml(path)
+    return scene_from_data(data, path, hashlib.sha256(path.read_bytes()).hexdigest())
+
+
+def scene_from_data(data: dict, path, sha256: str) -> Scene:
+    """Validate a scene given as the parsed TOML tables (``tissuerender lookdev`` builds its stage this
+    way); ``path`` names it in messages and anchors relative mesh paths, ``sha256`` identifies it."""
+    path = Path(path)
     try:
         parsed = SceneFile.model_validate(data)
     except ValidationError as e:
@@ -163,7 +170,7 @@ def load_scene(path) -> Scene:
         raise _validation_error(path, e, "effects") from None
     scene = Scene(
         path=path,
-        sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
+        sha256=sha256,
         info=parsed.scene,
         objects=tuple(parsed.objects),
         simulation=parsed.simulation,
@@ -202,6 +209,14 @@ def _check_references(scene: Scene) -> None:
         if obj.material not in materials.PRESET_NAMES:
             raise SceneError(p, f"{key}.material",
                              f"expected one of {', '.join(materials.PRESET_NAMES)}, found {obj.material!r}")
+        if obj.optics is not None:
+            from materials.optics import with_overrides
+
+            try:
+                with_overrides(materials.get_preset(obj.material).optics, obj.optics.values())
+            except ValueError as e:
+                k, _, msg = str(e).partition(": ")
+                raise SceneError(p, f"{key}.optics.{k}", f"{msg} (material {obj.material!r})") from None
         if obj.mesh is not None:
             mesh_path = scene.resolve(obj.mesh)
             suffixes = SURFACE_SUFFIXES if obj.kind == "surface" else TET_SUFFIXES + SURFACE_SUFFIXES

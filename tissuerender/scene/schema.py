@@ -78,6 +78,26 @@ class MaterialOverride(Strict):
     density: Annotated[float, Field(gt=0.0, le=1e5)] | None = None
 
 
+Unit = Annotated[float, Field(ge=0.0, le=1.0)]
+UnitRGB = Annotated[list[Unit], Field(min_length=3, max_length=3)]
+
+
+class OpticsOverride(Strict):
+    """Replaces values of the preset's optics (``materials.optics.OpticalMaterial``) for one object; what
+    ``tissuerender lookdev`` prints for a look to keep."""
+
+    albedo: UnitRGB | None = None
+    roughness: Annotated[float, Field(ge=1e-3, le=1.0)] | None = None
+    ior: Annotated[float, Field(ge=1.0, le=3.0)] | None = None
+    k_sss: Unit | None = None
+    sigma: Annotated[list[Annotated[float, Field(gt=0.0, le=1e6)]], Field(min_length=3, max_length=3)] | None = None
+    sss_colour: UnitRGB | None = None
+
+    def values(self) -> dict:
+        """The keys the scene sets (None: not set)."""
+        return {k: v for k, v in self.model_dump().items() if v is not None}
+
+
 class ObjectSpec(Strict):
     """A simulated body (``kind = "body"``) or a static surface from a file (``kind = "surface"``)."""
 
@@ -92,6 +112,7 @@ class ObjectSpec(Strict):
     position: Vec3 = [0.0, 0.0, 0.0]
     render_subdivision: Annotated[int, Field(ge=0, le=3)] = 0
     override: MaterialOverride | None = None
+    optics: OpticsOverride | None = None
     fixed: list[Region] = []
     prescribed: list[Prescribed] = []
     tractions: list[Traction] = []
