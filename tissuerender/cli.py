@@ -76,7 +76,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted: finished frames are kept; rerun with --resume to continue", file=sys.stderr)
+        if args.command == "render":
+            print("interrupted: finished frames are kept; rerun with --resume to continue", file=sys.stderr)
+        else:
+            print(f"interrupted: {args.command} wrote nothing further", file=sys.stderr)
         return 130
 
 
