@@ -29,7 +29,9 @@ J^(-1/3) = y comes from ``sim.ebm_kernels._inverse_cube_root`` (no libm call, so
 once per tet: ``lambda' = num / (den sum_j w_j |g_j|^2)``.
 
 ``precision = "float32"`` (``sim.ebm``; split models without Prony): :func:`sweeps_f32` runs the lane loop in
-float32 on displacement rows (16 lanes per zmm register); everything else stays float64 (end of this module).
+float32 on displacement rows (16 lanes per zmm register) and sums the increments per node in float32, and the energy
+accounting runs the float32 lane loop on the same rows; positions, prediction and velocities stay float64 (end of
+this module).
 
 Each run compiles only the variants it uses: ``code``, ``prony`` and the precision are literals, and
 :func:`variant` returns compiled closures that pass them as constants.
@@ -354,12 +356,23 @@ def sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, f
         bad = _all_blocks(corners, params, relax, out, code, prony, False, relax_a)
         finite = bad == 0
         for q in range(free_nodes.shape[0]):
+            k0 = free_start[q]
+            k1 = free_start[q + 1]
             ax = 0.0
             ay = 0.0
             az = 0.0
-            k0 = free_start[q]
-            k1 = free_start[q + 1]
-            for k in range(k0, k1):
+            k = k0
+            while k + 1 < k1:  # unrolled by two by hand, the additions in tet order (docs/ebm.md)
+                o = free_slot[k]
+                o2 = free_slot[k + 1]
+                ax += of[o]
+                ay += of[o + _L]
+                az += of[o + _L2]
+                ax += of[o2]
+                ay += of[o2 + _L]
+                az += of[o2 + _L2]
+                k += 2
+            if k < k1:
                 o = free_slot[k]
                 ax += of[o]
                 ay += of[o + _L]
@@ -372,7 +385,18 @@ def sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, f
             x[i, 0] = vx
             x[i, 1] = vy
             x[i, 2] = vz
-            for k in range(k0, k1):
+            k = k0
+            while k + 1 < k1:
+                o = free_slot[k]
+                o2 = free_slot[k + 1]
+                cf[o] = vx
+                cf[o + _L] = vy
+                cf[o + _L2] = vz
+                cf[o2] = vx
+                cf[o2 + _L] = vy
+                cf[o2 + _L2] = vz
+                k += 2
+            if k < k1:
                 o = free_slot[k]
                 cf[o] = vx
                 cf[o + _L] = vy
@@ -386,8 +410,7 @@ def sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, f
 
 def _any_sweeps(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
                 free_slot, node_scale, code, prony, single, relax_a, iterations):
-    """:func:`sweeps`, or with ``single`` (a literal) :func:`sweeps_f32` followed by the float64 corner positions for
-    the accounting; compiled code only. (A plain ``if single`` in :func:`step` is not pruned before typing, so the
+    """:func:`sweeps`, or with ``single`` (a literal) :func:`sweeps_f32`; compiled code only. (A plain ``if single`` in :func:`step` is not pruned before typing, so the
     float32 path would be typed for materials it does not support.)"""
     raise NotImplementedError("sim.ebm_blocked._any_sweeps runs in compiled code only")
 
@@ -401,15 +424,36 @@ def _any_sweeps_variant(x, X, node_index, params, relax, out, corners, params32,
     if bool(single.literal_value):
         def impl(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
                  free_slot, node_scale, code, prony, single, relax_a, iterations):
-            done = sweeps_f32(x, X, node_index, params32, out32, corners32, free_nodes, free_start, free_slot,
+            return sweeps_f32(x, X, node_index, params32, out32, corners32, free_nodes, free_start, free_slot,
                               node_scale, c, iterations)
-            load_corners(x, node_index, corners)
-            return done
     else:
         def impl(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
                  free_slot, node_scale, code, prony, single, relax_a, iterations):
             return sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale,
                           c, pr, relax_a, iterations)
+    return impl
+
+
+def _accounting(corners, params, relax, out, corners32, params32, out32, code, prony, single, relax_a):
+    """The energy accounting's lane loop at the positions the sweeps left in the corner rows: ``dW/dx``, ``W`` and
+    ``|F|^2`` per tet; returns the flattened output rows (float64, or float32 with ``single``, where it runs the float32
+    loop on the displacement rows ``corners32``). Compiled code only (``code``, ``prony``, ``single`` literals)."""
+    raise NotImplementedError("sim.ebm_blocked._accounting runs in compiled code only")
+
+
+@overload(_accounting, prefer_literal=True)
+def _accounting_variant(corners, params, relax, out, corners32, params32, out32, code, prony, single, relax_a):
+    if not all(isinstance(a, types.Literal) for a in (code, prony, single)):
+        return None
+    c, pr = int(code.literal_value), bool(prony.literal_value)
+    if bool(single.literal_value):
+        def impl(corners, params, relax, out, corners32, params32, out32, code, prony, single, relax_a):
+            _all_blocks_f32(corners32, params32, out32, c, True)
+            return out32.reshape(out32.size)
+    else:
+        def impl(corners, params, relax, out, corners32, params32, out32, code, prony, single, relax_a):
+            _all_blocks(corners, params, relax, out, c, pr, True, relax_a)
+            return out.reshape(out.size)
     return impl
 
 
@@ -430,7 +474,9 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
 
     Returns ``(sweeps done, work increment [J], strain energy [J], largest stretch)``. ``code``, ``prony`` and
     ``single`` are compiled as literals (one specialisation per material and Prony in use). ``single``: the sweeps
-    run :func:`sweeps_f32` on ``params32``, ``out32``, ``corners32`` (the rest stays float64)."""
+    run :func:`sweeps_f32` on ``params32``, ``out32``, ``corners32`` and the accounting's lane loop in float32 on the
+    displacement rows the sweeps leave there (positions, prediction, velocities and the sums of the accounting stay
+    float64)."""
     literally(code)
     literally(prony)
     literally(single)
@@ -460,9 +506,8 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
             v[i, d] = (x[i, d] - x_prev[i, d]) / h
     if done < iterations:
         return done, 0.0, 0.0, 0.0
-    # accounting: dW/dx, W and |F|^2 per tet at the new positions (the corners hold them)
-    _all_blocks(corners, params, relax, out, code, prony, True, relax_a)
-    of = out.reshape(out.size)
+    # accounting: dW/dx, W and |F|^2 per tet at the new positions (the corners hold them; float32 with single)
+    of = _accounting(corners, params, relax, out, corners32, params32, out32, code, prony, single, relax_a)
     strain = 0.0
     FF = 0.0
     for t in range(n_tets):
@@ -543,8 +588,10 @@ def _make_variant(code, prony, single):
 
 
 # -- single precision sweeps (settings ``precision = "float32"``): the split models only, without Prony ----------
-# The lane loop runs on float32 (16 lanes per zmm register instead of 8); positions, the node sums, the prediction,
-# the velocities and the energy accounting stay float64. The corner rows hold the displacements u = x - X (float32),
+# The lane loop runs on float32 (16 lanes per zmm register instead of 8), in the sweeps and in the energy accounting;
+# each node's increments are summed in float32 (one addition per incidence instead of a conversion and an addition);
+# positions, the prediction, the velocities and the accounting's sums stay float64. The corner rows hold the
+# displacements u = x - X (float32),
 # so that H = F - I = (u_k - u_0) b_k comes without the cancellation of F - I in single precision.
 _F32_ONE = np.float32(1.0)
 _F32_TWO = np.float32(2.0)
@@ -632,11 +679,12 @@ def _split_model_f32(h00, h01, h02, h10, h11, h12, h20, h21, h22, mu, kappa, eta
 
 
 @njit(cache=True, inline="always")
-def _lanes_f32(fibre, c, p, out, blk, lanes):
-    """The sweep's lane loop in float32 (``c``: displacement rows u = x - X). Writes ``-lambda' g_k`` (the node pass
-    multiplies by w_k); returns the number of NaN multipliers, counted in float32: a 64-bit counter would make the
-    widest type in the loop 64 bits and cap the vector width at 8 lanes (ymm) instead of 16 (zmm)."""
-    bad = _F32_ZERO
+def _lanes_f32(fibre, forces, c, p, out, blk, lanes):
+    """The lane loop in float32 (``c``: displacement rows u = x - X). Sweep (``forces`` False): writes
+    ``-lambda' g_k`` (the node pass multiplies by w_k) and the denominators (row ``OUT_W``: the caller counts the NaN
+    ones in a separate pass; a counter in the loop would make it a reduction, or with 64 bits cap the vector width
+    at 8 lanes). Forces (the energy accounting of a float32 step): ``dW/dx_k = V P b_k``, ``W = V Psi`` and
+    ``|F|^2``, as :func:`_lanes` with ``forces``."""
     for l in range(lanes):
         b10, b11, b12 = p[blk, (ROW_B + 0) * LANES + l], p[blk, (ROW_B + 1) * LANES + l], p[blk, (ROW_B + 2) * LANES + l]
         b20, b21, b22 = p[blk, (ROW_B + 3) * LANES + l], p[blk, (ROW_B + 4) * LANES + l], p[blk, (ROW_B + 5) * LANES + l]
@@ -652,6 +700,9 @@ def _lanes_f32(fibre, c, p, out, blk, lanes):
             p[blk, ROW_MU * LANES + l], p[blk, ROW_KAPPA * LANES + l], p[blk, ROW_ETA * LANES + l],
             p[blk, (ROW_FIBRE + 0) * LANES + l], p[blk, (ROW_FIBRE + 1) * LANES + l],
             p[blk, (ROW_FIBRE + 2) * LANES + l], p[blk, ROW_FIBRE_NORM * LANES + l], fibre)
+        if forces:
+            V = p[blk, ROW_VOLUME * LANES + l]
+            P = (V * P[0], V * P[1], V * P[2], V * P[3], V * P[4], V * P[5], V * P[6], V * P[7], V * P[8])
         g1x = P[0] * b10 + P[1] * b11 + P[2] * b12
         g1y = P[3] * b10 + P[4] * b11 + P[5] * b12
         g1z = P[6] * b10 + P[7] * b11 + P[8] * b12
@@ -664,15 +715,27 @@ def _lanes_f32(fibre, c, p, out, blk, lanes):
         g0x = -(g1x + g2x + g3x)
         g0y = -(g1y + g2y + g3y)
         g0z = -(g1z + g2z + g3z)
-        w0, w1 = p[blk, (ROW_W + 0) * LANES + l], p[blk, (ROW_W + 1) * LANES + l]
-        w2, w3 = p[blk, (ROW_W + 2) * LANES + l], p[blk, (ROW_W + 3) * LANES + l]
-        denom = (w0 * (g0x * g0x + g0y * g0y + g0z * g0z) + w1 * (g1x * g1x + g1y * g1y + g1z * g1z)
-                 + w2 * (g2x * g2x + g2y * g2y + g2z * g2z) + w3 * (g3x * g3x + g3y * g3y + g3z * g3z))
-        ok = denom > _F32_TINY
-        lam_k = num / (den * denom if ok else _F32_ONE)
-        nan = denom != denom
-        out[blk, OUT_W * LANES + l] = denom
-        s = -(lam_k if ok else (_F32_NAN if nan else _F32_ZERO))
+        if forces:
+            s = _F32_ONE
+            out[blk, OUT_W * LANES + l] = p[blk, ROW_VOLUME * LANES + l] * (num / den)
+            h00, h11, h22 = e1x * b10 + e2x * b20 + e3x * b30, e1y * b11 + e2y * b21 + e3y * b31, \
+                e1z * b12 + e2z * b22 + e3z * b32
+            h01, h02 = e1x * b11 + e2x * b21 + e3x * b31, e1x * b12 + e2x * b22 + e3x * b32
+            h10, h12 = e1y * b10 + e2y * b20 + e3y * b30, e1y * b12 + e2y * b22 + e3y * b32
+            h20, h21 = e1z * b10 + e2z * b20 + e3z * b30, e1z * b11 + e2z * b21 + e3z * b31
+            out[blk, OUT_FF * LANES + l] = (_F32_THREE + _F32_TWO * (h00 + h11 + h22) + h00 * h00 + h01 * h01
+                                            + h02 * h02 + h10 * h10 + h11 * h11 + h12 * h12 + h20 * h20 + h21 * h21
+                                            + h22 * h22)  # |I + H|^2
+        else:
+            w0, w1 = p[blk, (ROW_W + 0) * LANES + l], p[blk, (ROW_W + 1) * LANES + l]
+            w2, w3 = p[blk, (ROW_W + 2) * LANES + l], p[blk, (ROW_W + 3) * LANES + l]
+            denom = (w0 * (g0x * g0x + g0y * g0y + g0z * g0z) + w1 * (g1x * g1x + g1y * g1y + g1z * g1z)
+                     + w2 * (g2x * g2x + g2y * g2y + g2z * g2z) + w3 * (g3x * g3x + g3y * g3y + g3z * g3z))
+            ok = denom > _F32_TINY
+            lam_k = num / (den * denom if ok else _F32_ONE)
+            nan = denom != denom
+            out[blk, OUT_W * LANES + l] = denom
+            s = -(lam_k if ok else (_F32_NAN if nan else _F32_ZERO))
         out[blk, (OUT_D + 0) * LANES + l] = s * g0x
         out[blk, (OUT_D + 1) * LANES + l] = s * g0y
         out[blk, (OUT_D + 2) * LANES + l] = s * g0z
@@ -687,35 +750,39 @@ def _lanes_f32(fibre, c, p, out, blk, lanes):
         out[blk, (OUT_D + 11) * LANES + l] = s * g3z
 
 
-def _all_blocks_f32(corners, params, out, code):
-    """Every block's float32 lane loop (``code`` a literal: a split model); compiled code only."""
+def _all_blocks_f32(corners, params, out, code, forces):
+    """Every block's float32 lane loop (``code`` and ``forces`` literals; a split model). Compiled code only."""
     raise NotImplementedError("sim.ebm_blocked._all_blocks_f32 runs in compiled code only")
 
 
 @overload(_all_blocks_f32, prefer_literal=True, jit_options={"error_model": "numpy", "fastmath": {"contract"}})
-def _all_blocks_f32_variant(corners, params, out, code):
+def _all_blocks_f32_variant(corners, params, out, code, forces):
     """fastmath: only "contract"."""
-    if not isinstance(code, types.Literal):
+    if not (isinstance(code, types.Literal) and isinstance(forces, types.Literal)):
         return None
-    c = int(code.literal_value)
+    c, fo = int(code.literal_value), bool(forces.literal_value)
     if c not in (NEO_HOOKEAN, ANISOTROPIC_NEO_HOOKEAN):
         raise TypingError(f"sim.ebm_blocked: no float32 kernel for material code {c} (split models only)")
     fi = c == ANISOTROPIC_NEO_HOOKEAN
 
-    def impl(corners, params, out, code):
+    def impl(corners, params, out, code, forces):
         lanes = corners.shape[1] // N_OUT
         for blk in range(corners.shape[0]):
-            _lanes_f32(fi, corners, params, out, blk, lanes)
-        of = out.reshape(out.size)
-        bad = 0
-        for blk in range(corners.shape[0]):
-            base = blk * (N_OUT * LANES) + OUT_W * LANES
-            for l in range(LANES):
-                d = of[base + l]
-                bad += 1 if d != d else 0
-        return bad
+            _lanes_f32(fi, fo, corners, params, out, blk, lanes)
 
     return impl
+
+
+@njit(cache=True, error_model="numpy")
+def _nan_denominators_f32(out):
+    """How many of the last float32 sweep's denominators (row ``OUT_W``, padding lanes included) are NaN."""
+    lanes = out.shape[1] // N_OUT  # a run-time trip count: LANES as a constant makes LLVM unroll the row and
+    bad = 0  # vectorise the loop over blocks with gathers instead
+    for blk in range(out.shape[0]):
+        for l in range(lanes):
+            d = out[blk, OUT_W * LANES + l]
+            bad += 1 if d != d else 0
+    return bad
 
 
 @njit(cache=True)
@@ -736,26 +803,43 @@ def load_displacements_f32(x, X, node_index, corners):
 def sweeps_f32(x, X, node_index, params, out, corners, free_nodes, free_start, free_slot, node_scale, code,
                iterations):
     """:func:`sweeps` with the float32 lane loop (``params``, ``out``, ``corners`` float32; ``corners`` rows hold
-    displacements; ``node_scale`` includes the inverse masses). The node sums, in tet order, and ``x`` are float64.
-    ``code`` (a split model) is compiled as a literal."""
+    displacements; ``node_scale`` includes the inverse masses). The node sums, in tet order, are float32, ``x``
+    float64.
+    ``code`` (a split model) is compiled as a literal.
+
+    NaN multipliers are counted after the last sweep only (a pass over the denominators costs ~3 % of a step when
+    done every sweep): a NaN multiplier of a tet with a free node makes that node's position NaN in the same sweep,
+    which the finiteness check catches there, and a tet whose nodes are all kinematic has the same multiplier in
+    every sweep. Either way the sweeps fail (fewer than ``iterations`` done), as in :func:`sweeps`."""
     literally(code)
     load_displacements_f32(x, X, node_index, corners)
     of = out.reshape(out.size)
     cf = corners.reshape(corners.size)
     for it in range(iterations):
-        bad = _all_blocks_f32(corners, params, out, code)
-        finite = bad == 0
+        _all_blocks_f32(corners, params, out, code, False)
+        finite = True
         for q in range(free_nodes.shape[0]):
-            ax = 0.0
-            ay = 0.0
-            az = 0.0
             k0 = free_start[q]
             k1 = free_start[q + 1]
-            for k in range(k0, k1):
+            ax = _F32_ZERO
+            ay = _F32_ZERO
+            az = _F32_ZERO
+            k = k0
+            while k + 1 < k1:  # unrolled by two by hand, the additions in tet order (float32 sums: docs/ebm.md)
                 o = free_slot[k]
-                ax += np.float64(of[o])
-                ay += np.float64(of[o + _L])
-                az += np.float64(of[o + _L2])
+                o2 = free_slot[k + 1]
+                ax += of[o]
+                ay += of[o + _L]
+                az += of[o + _L2]
+                ax += of[o2]
+                ay += of[o2 + _L]
+                az += of[o2 + _L2]
+                k += 2
+            if k < k1:
+                o = free_slot[k]
+                ax += of[o]
+                ay += of[o + _L]
+                az += of[o + _L2]
             i = free_nodes[q]
             sc = node_scale[i]
             vx = x[i, 0] + ax * sc
@@ -767,7 +851,18 @@ def sweeps_f32(x, X, node_index, params, out, corners, free_nodes, free_start, f
             ux = np.float32(vx - X[i, 0])
             uy = np.float32(vy - X[i, 1])
             uz = np.float32(vz - X[i, 2])
-            for k in range(k0, k1):
+            k = k0
+            while k + 1 < k1:
+                o = free_slot[k]
+                o2 = free_slot[k + 1]
+                cf[o] = ux
+                cf[o + _L] = uy
+                cf[o + _L2] = uz
+                cf[o2] = ux
+                cf[o2 + _L] = uy
+                cf[o2 + _L2] = uz
+                k += 2
+            if k < k1:
                 o = free_slot[k]
                 cf[o] = ux
                 cf[o + _L] = uy
@@ -776,4 +871,6 @@ def sweeps_f32(x, X, node_index, params, out, corners, free_nodes, free_start, f
                 finite = False
         if not finite:
             return it
+    if iterations > 0 and _nan_denominators_f32(out) > 0:
+        return iterations - 1
     return iterations

@@ -332,3 +332,20 @@ def test_ebm_float32_inverted_element_is_reported():
     ebm = EBM(model, {"iterations": 5, "precision": "float32"})
     with pytest.raises(SimulationDiverged, match="non-finite positions"):
         ebm.step(State(x=x, v=np.zeros_like(x)), 0.01)
+
+
+@pytest.mark.parametrize("kernel, precision", [("numba", "float64"), ("blocked", "float64"), ("blocked", "float32")])
+def test_ebm_inverted_element_with_kinematic_nodes_only_is_reported(kernel, precision):
+    """Every node kinematic (no free node, so no position can turn NaN), one node prescribed through the opposite
+    face of a tet: only the NaN multiplier says so. The float32 sweeps count NaN denominators after the last sweep
+    instead of in every sweep (sim.ebm_blocked.sweeps_f32); the step must still fail."""
+    model = _block("neo_hookean", None, None)
+    t = int(np.flatnonzero(~model.kinematic_mask()[model.tets].any(axis=1))[0])
+    i0, i1 = model.tets[t, 0], model.tets[t, 1]
+    rest = np.setdiff1d(np.arange(model.n_nodes), [i1])
+    model.prescribed = [PrescribedDisplacement(rest, np.zeros(3), 0.0, 0.0),
+                        PrescribedDisplacement(np.array([i1]), -1.5 * (model.X[i1] - model.X[i0]), 0.0, 0.0)]
+    assert model.kinematic_mask().all()
+    ebm = EBM(model, {"iterations": 5, "kernel": kernel, "precision": precision})
+    with pytest.raises(SimulationDiverged, match="non-finite positions"):
+        ebm.step(State.at_rest(model), 0.01)
