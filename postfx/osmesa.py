@@ -27,7 +27,11 @@ from postfx.shaders import DOF_BLOCK, DOF_TILE, GAUSS_BLOCK, MAX_TAPS, POINTWISE
 GL_FLOAT = 0x1406
 GL_RGB = 0x1907
 GL_RGBA = 0x1908
+_GL_FORMATS = {1: 0x1903, 2: 0x8227, 3: GL_RGB, 4: GL_RGBA}  # GL_RED, GL_RG, GL_RGB, GL_RGBA
 GL_PIXEL_PACK_BUFFER = 0x88EB
+GL_PIXEL_UNPACK_BUFFER = 0x88EC
+GL_UNPACK_ALIGNMENT = 0x0CF5
+GL_TEXTURE_2D = 0x0DE1
 GL_PACK_ALIGNMENT = 0x0D05
 GL_RGBA32F = 0x8814
 GL_WRITE_ONLY = 0x88B9
@@ -124,6 +128,12 @@ class Context:
         self.gl.glBindBuffer.argtypes = [ctypes.c_uint, ctypes.c_uint]
         self.gl.glPixelStorei.argtypes = [ctypes.c_uint, ctypes.c_int]
         self.gl.glReadPixels.argtypes = [ctypes.c_int] * 4 + [ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p]
+        self.gl.glTexSubImage2D.argtypes = [ctypes.c_uint, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+                                            ctypes.c_int, ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p]
+        # per-frame inputs of a fixed shape (the DoF's padded source): a host array and a texture kept
+        # from chain to chain, refilled in place (no fresh pages to fault in, no texture allocation)
+        self.staging: dict = {}
+        self.persistent: dict = {}
         self.free: dict[tuple[int, int], list] = {}
         self.pooled: dict[int, int] = {}  # id -> layers of the targets this context allocated
         # when a dict: every draw waits for the passes before it, and for itself, and adds its seconds
@@ -171,6 +181,36 @@ class Context:
         tex.SetContext(self.window)
         tex.Create2DFromRaw(w, h, channels, VTK_FLOAT, data)  # copied into GL here
         return self._filtering(tex)
+
+    def staging_array(self, key, shape, tag=None) -> tuple[np.ndarray, bool]:
+        """A float32 host array of ``shape`` kept under ``key`` for the next upload, with the contents of
+        its last use when ``shape`` and ``tag`` repeat; the flag is True when it is new."""
+        arr, last = self.staging.get(key, (None, None))
+        if arr is None or arr.shape != tuple(shape) or last != tag:
+            arr = np.empty(shape, np.float32)
+            self.staging[key] = (arr, tag)
+            return arr, True
+        return arr, False
+
+    def upload_into(self, key, array: np.ndarray):
+        """``upload(array)`` into a texture kept under ``key``: refilled with glTexSubImage2D when the shape
+        repeats (the DoF source at 664 x 504: 0.44 vs 0.65 ms for a new texture; a 40 x 30 one: 0.008
+        vs 0.021 ms). The texture holds ``array`` until the next upload under the same key (GL orders
+        that upload after every pass drawn before it)."""
+        h, w = array.shape[:2]
+        channels = 1 if array.ndim == 2 else array.shape[2]
+        tex, shape = self.persistent.get(key, (None, None))
+        if tex is None or shape != (h, w, channels):
+            tex = self.upload(array)
+            self.persistent[key] = (tex, (h, w, channels))
+            return tex
+        tex.Activate()  # binds it to GL_TEXTURE_2D of its unit
+        self.gl.glBindBuffer(GL_PIXEL_UNPACK_BUFFER, 0)  # from client memory
+        self.gl.glPixelStorei(GL_UNPACK_ALIGNMENT, 4)
+        self.gl.glTexSubImage2D(GL_TEXTURE_2D, 0, 0, 0, w, h, _GL_FORMATS[channels], GL_FLOAT,
+                                np.ascontiguousarray(array, dtype=np.float32).ctypes.data)
+        tex.Deactivate()
+        return tex
 
     def target(self, width: int, height: int, border=None, layers: int = 0):
         """An RGBA32F texture from the pool (contents undefined until drawn); with ``layers``, a 3D
@@ -366,7 +406,7 @@ class _Epilogue:
             elif name == "color_grade":
                 if "cg_lut" in self.inputs:
                     raise ValueError("one colour grade per fused pass")
-                self.inputs["cg_lut"] = ctx.upload(_lut_pairs(effects.grade_lut(params)))
+                self.inputs["cg_lut"] = ctx.upload_into("cg_lut", _lut_pairs(effects.grade_lut(params)))
                 self.uniforms.update(cg_saturation=float(params.saturation), cg_luma=effects.LUMA)
             elif name == "laparoscope_mask":
                 self.uniforms.update(mask_centre=(width * (0.5 + params.offset[0]), height * (0.5 + params.offset[1])),
@@ -464,17 +504,19 @@ def dof_tiles(reach2: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, error_model="numpy")
-def _dof_source_host(img, reach2, pad):
-    """The gather's source on the CPU, as the ``dof_source`` pass draws it: padded by ``pad`` texels of
-    reach -1, ``(r w, g w, b w, reach2)`` with w = 1 / (pi max(reach2 - 1/4, 1/4)) in float32."""
+def _dof_source_host(img, reach2, pad, out, fill_pad):
+    """The gather's source on the CPU, as the ``dof_source`` pass draws it, into ``out`` ((h + 2 pad,
+    w + 2 pad, 4) float32): padded by ``pad`` texels of reach -1 (written only when ``fill_pad``: a
+    reused array keeps them), ``(r w, g w, b w, reach2)`` with w = 1 / (pi max(reach2 - 1/4, 1/4)) in
+    float32."""
     h, w, _ = img.shape
-    out = np.empty((h + 2 * pad, w + 2 * pad, 4), np.float32)
-    for j in range(h + 2 * pad):
-        for i in range(w + 2 * pad):
-            out[j, i, 0] = 0.0
-            out[j, i, 1] = 0.0
-            out[j, i, 2] = 0.0
-            out[j, i, 3] = -1.0
+    if fill_pad:
+        for j in range(h + 2 * pad):
+            for i in range(w + 2 * pad):
+                out[j, i, 0] = 0.0
+                out[j, i, 1] = 0.0
+                out[j, i, 2] = 0.0
+                out[j, i, 3] = -1.0
     pi = np.float32(3.14159265358979)
     for j in range(h):
         for i in range(w):
@@ -484,7 +526,6 @@ def _dof_source_host(img, reach2, pad):
             out[j + pad, i + pad, 1] = img[j, i, 1] * wq
             out[j + pad, i + pad, 2] = img[j, i, 2] * wq
             out[j + pad, i + pad, 3] = r2
-    return out
 
 
 def _depth_of_field(ctx, tex, depth, params, lens, ep, host=None):
@@ -504,12 +545,14 @@ def _depth_of_field(ctx, tex, depth, params, lens, ep, host=None):
     pad = int(math.floor(math.sqrt(max_reach2))) + max(kx, ky)
     if host is not None:
         t0 = time.perf_counter()
-        src = ctx.upload(_dof_source_host(np.ascontiguousarray(host, dtype=np.float32), reach2, pad))
+        staged, new = ctx.staging_array("dof_source", (h + 2 * pad, w + 2 * pad, 4), tag=pad)
+        _dof_source_host(np.ascontiguousarray(host, dtype=np.float32), reach2, pad, staged, new)
+        src = ctx.upload_into("dof_source", staged)
         ctx.note("dof source (CPU) + upload", t0)
     else:
-        reach_tex = ctx.upload(reach2)
+        reach_tex = ctx.upload_into("dof_reach2", reach2)
         src = ctx.draw("dof_source", {"img": tex, "reach2": reach_tex}, {"pad": pad}, w + 2 * pad, h + 2 * pad)
-    tiles = ctx.upload(dilate_tiles(tile_max, max_reach2))
+    tiles = ctx.upload_into("dof_tiles", dilate_tiles(tile_max, max_reach2))
     blocks = (-(-w // kx), -(-h // ky))
     out = ctx.target(w, h)
     dummy = ctx.draw("dof_gather", {"src": src, "tiles": tiles, **ep.inputs},
@@ -591,7 +634,7 @@ def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fu
     start = time.perf_counter()
     groups = fused_groups(chain, fuse)
     # a depth of field first builds its source from the frame on the CPU: no upload of the frame itself
-    tex = None if groups and groups[0][0][0] == "depth_of_field" else ctx.upload(hdr)
+    tex = None if groups and groups[0][0][0] == "depth_of_field" else ctx.upload_into("frame", hdr)
     uploaded = tex
     seconds = {}
     for group in groups:

@@ -240,7 +240,8 @@ def _dof_gather(kx: int, ky: int, rows: int = DOF_GROUP[0], cols: int = DOF_GROU
     for r in range(rows):
         for c in range(cols):
             body.append(f"      vec4 s{r}{c} = texture(src, q + vec2({c}.0 * inv.x, {r}.0 * inv.y));")
-            body.append(f"      vec4 v{r}{c} = vec4(s{r}{c}.rgb, 1.0 / (3.14159265358979 * max(s{r}{c}.a - 0.25, 0.25)));")
+            body.append(f"      vec4 v{r}{c} = vec4(s{r}{c}.rgb, "
+                        f"1.0 / (3.14159265358979 * max(s{r}{c}.a - 0.25, 0.25)));")
             # reach2 - dj^2 is exact in float32 (dj^2 is an integer, a multiple of the ulp of reach2), so
             # di^2 <= t is exactly the integer disc test di^2 + dj^2 <= reach2 of effects._scatter_disc
             body += [f"      float t{r}{c}_{y} = s{r}{c}.a - d{r}_{y};" for y in range(ky)]
@@ -248,7 +249,8 @@ def _dof_gather(kx: int, ky: int, rows: int = DOF_GROUP[0], cols: int = DOF_GROU
         body += [f"      float e{c}_{x} = float((di + {c - x}) * (di + {c - x}));" for x in range(kx)]
     for y in range(ky):
         for x in range(kx):
-            terms = " + ".join(f"(e{c}_{x} <= t{r}{c}_{y} ? v{r}{c} : vec4(0.0))" for r in range(rows) for c in range(cols))
+            terms = " + ".join(f"(e{c}_{x} <= t{r}{c}_{y} ? v{r}{c} : vec4(0.0))"
+                               for r in range(rows) for c in range(cols))
             body.append(f"      a{x}_{y} += {terms};")
     writes = "\n".join(f"  if (o.x + {x} < size.x && o.y + {y} < size.y) imageStore(dof_out, o + ivec2({x}, {y}), "
                         f"vec4(post(a{x}_{y}.rgb / a{x}_{y}.a, o + ivec2({x}, {y}), size), 1.0));"

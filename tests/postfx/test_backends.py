@@ -216,3 +216,21 @@ def test_dof_after_another_effect_builds_its_source_on_the_gl_side():
     ref = postfx.apply_chain(hdr, depth, chain, LENS, backend="numpy").image
     assert np.abs(np.clip(fused, 0.0, 1.0) - ref).max() <= 1e-5
 
+
+
+@needs_osmesa
+@pytest.mark.osmesa
+def test_dof_source_reused_between_frames_keeps_each_frame_exact():
+    """The DoF's padded source lives in a host array and a texture kept from chain to chain: a second
+    frame of the same size (other colours, other CoC, then a larger CoC that widens the padding)
+    must come out as if computed afresh."""
+    rng = np.random.default_rng(17)
+    h, w = 40, 56
+    lens = postfx.Lens(70.0, w, h)
+    for max_r in (4.0, 4.0, 7.0):
+        hdr = (rng.random((h, w, 3)) * 4.0).astype(np.float32)
+        depth = (0.05 + rng.random((h, w)) * 0.2).astype(np.float32)
+        p = DepthOfField(focus_distance=0.1, aperture=0.002, max_radius_px=max_r)
+        ref = postfx.apply_effect("depth_of_field", hdr, depth, p, lens)
+        gpu = osmesa.apply_effect("depth_of_field", hdr, depth, p, lens)
+        assert np.abs(ref - gpu).max() <= 1e-5 * np.abs(ref).max()
