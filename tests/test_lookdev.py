@@ -109,6 +109,15 @@ def test_scene_optics_errors_name_the_key(tmp_path, table, key, words):
     assert f"{path}: {key}: " in str(err.value) and words in str(err.value)
 
 
+def test_a_bad_scene_stage_is_reported_as_the_scene_error(tmp_path, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text((ROOT / "scenes" / "kidney_static.toml").read_text().replace('material = "kidney"',
+                                                                               'material = "kidney"\noptics = "shiny"'))
+    assert main(["lookdev", "kidney", "--scene", str(path), "-o", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {path}: objects[0].optics: expected") and err.count("\n") == 1, err
+
+
 @pytest.mark.parametrize("args, words", [
     (["livr"], "material: expected one of liver"),
     (["liver", "--set", "roughness=2"], "--set roughness: expected input should be less than or equal to 1"),

@@ -223,8 +223,11 @@ def render_cells(cells: list[Cell], shape: str = "sphere", scene_path: str | Non
 
     with tempfile.TemporaryDirectory(prefix="tissuerender_lookdev_") as tmp:
         base, path = _stage_data(shape, scene_path, Path(tmp))
-        for cell in cells:  # every material must be in the scene before anything renders
-            if scene_path is not None:
+        if scene_path is not None:  # the scene as it is must be valid, and hold every material, before anything renders
+            from tissuerender.scene import load_scene
+
+            load_scene(path)
+            for cell in cells:
                 _objects_of(base, path, cell.material)
         images, stats = [], []
         for cell in cells:
