@@ -30,8 +30,8 @@ Settings: ``iterations`` (default 100), ``substeps``, ``update`` ("average" | "s
 tested against to 1e-10; "numpy": the vectorised NumPy reference below, which the scalar kernels are
 tested against to 1e-10). Valanis–Landel materials always take the NumPy path (their curves are not
 compiled). ``precision`` ("float64", default | "float32"): with the blocked kernel, the per-tet lane loops (sweeps
-and energy accounting) and the per-node sums of the increments in float32 (16 tets per AVX-512 register;
-Neo-Hookean and anisotropic Neo-Hookean without Prony only; positions, prediction and velocities stay float64).
+and energy accounting) in float32 (16 tets per AVX-512 register; Neo-Hookean and anisotropic Neo-Hookean without
+Prony only; node sums in float64 over float32 pairs; positions, prediction and velocities stay float64).
 Its deviation from float64 is measured in docs/ebm.md: as large as a 1e-13 m perturbation of a float64 run on the
 Zhang 5.3.2 cases, so not the default.
 """

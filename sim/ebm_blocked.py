@@ -29,9 +29,9 @@ J^(-1/3) = y comes from ``sim.ebm_kernels._inverse_cube_root`` (no libm call, so
 once per tet: ``lambda' = num / (den sum_j w_j |g_j|^2)``.
 
 ``precision = "float32"`` (``sim.ebm``; split models without Prony): :func:`sweeps_f32` runs the lane loop in
-float32 on displacement rows (16 lanes per zmm register) and sums the increments per node in float32, and the energy
-accounting runs the float32 lane loop on the same rows; positions, prediction and velocities stay float64 (end of
-this module).
+float32 on displacement rows (16 lanes per zmm register), the node pass adds each node's increments two at a time in
+float32 and accumulates the pair sums in float64, and the energy accounting runs the float32 lane loop on the same
+rows; positions, prediction and velocities stay float64 (end of this module).
 
 Each run compiles only the variants it uses: ``code``, ``prony`` and the precision are literals, and
 :func:`variant` returns compiled closures that pass them as constants.
@@ -501,9 +501,10 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
                 x[i, d] = X[i, d] + frac * kin_displacement[q, d]
     done = _any_sweeps(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes,
                        free_start, free_slot, node_scale, code, prony, single, relax_a, iterations)
+    inv_h = 1.0 / h  # one division (480 divisions were 0.65 us of a 504-tet step); v within an ulp of (x - x_prev) / h
     for i in range(n):
         for d in range(3):
-            v[i, d] = (x[i, d] - x_prev[i, d]) / h
+            v[i, d] = (x[i, d] - x_prev[i, d]) * inv_h
     if done < iterations:
         return done, 0.0, 0.0, 0.0
     # accounting: dW/dx, W and |F|^2 per tet at the new positions (the corners hold them; float32 with single)
@@ -589,8 +590,10 @@ def _make_variant(code, prony, single):
 
 # -- single precision sweeps (settings ``precision = "float32"``): the split models only, without Prony ----------
 # The lane loop runs on float32 (16 lanes per zmm register instead of 8), in the sweeps and in the energy accounting;
-# each node's increments are summed in float32 (one addition per incidence instead of a conversion and an addition);
-# positions, the prediction, the velocities and the accounting's sums stay float64. The corner rows hold the
+# the node pass adds a node's increments two at a time in float32 and accumulates these pair sums in float64 (half the
+# conversions; whole float32 sums were a little faster and moved the zhang_rates block 3-4x further from float64,
+# float64 sums ~5 % slower: docs/ebm.md); positions, the prediction, the velocities and the accounting's sums stay
+# float64. The corner rows hold the
 # displacements u = x - X (float32),
 # so that H = F - I = (u_k - u_0) b_k comes without the cancellation of F - I in single precision.
 _F32_ONE = np.float32(1.0)
@@ -807,8 +810,8 @@ def load_displacements_f32(x, X, node_index, corners):
 def sweeps_f32(x, X, node_index, params, out, corners, free_nodes, free_start, free_slot, node_scale, code,
                iterations):
     """:func:`sweeps` with the float32 lane loop (``params``, ``out``, ``corners`` float32; ``corners`` rows hold
-    displacements; ``node_scale`` includes the inverse masses). The node sums, in tet order, are float32, ``x``
-    float64.
+    displacements; ``node_scale`` includes the inverse masses). The node sums run in tet order, in float64 over float32
+    sums of consecutive pairs of incidences; ``x`` is float64.
     ``code`` (a split model) is compiled as a literal.
 
     NaN multipliers are counted after the last sweep only (a pass over the denominators costs ~3 % of a step when
@@ -825,25 +828,22 @@ def sweeps_f32(x, X, node_index, params, out, corners, free_nodes, free_start, f
         for q in range(free_nodes.shape[0]):
             k0 = free_start[q]
             k1 = free_start[q + 1]
-            ax = _F32_ZERO
-            ay = _F32_ZERO
-            az = _F32_ZERO
+            ax = 0.0
+            ay = 0.0
+            az = 0.0
             k = k0
-            while k + 1 < k1:  # unrolled by two by hand, the additions in tet order (float32 sums: docs/ebm.md)
+            while k + 1 < k1:  # two incidences at a time, their float32 sum added to the float64 sum (docs/ebm.md)
                 o = free_slot[k]
                 o2 = free_slot[k + 1]
-                ax += of[o]
-                ay += of[o + _L]
-                az += of[o + _L2]
-                ax += of[o2]
-                ay += of[o2 + _L]
-                az += of[o2 + _L2]
+                ax += np.float64(of[o] + of[o2])
+                ay += np.float64(of[o + _L] + of[o2 + _L])
+                az += np.float64(of[o + _L2] + of[o2 + _L2])
                 k += 2
             if k < k1:
                 o = free_slot[k]
-                ax += of[o]
-                ay += of[o + _L]
-                az += of[o + _L2]
+                ax += np.float64(of[o])
+                ay += np.float64(of[o + _L])
+                az += np.float64(of[o + _L2])
             i = free_nodes[q]
             sc = node_scale[i]
             vx = x[i, 0] + ax * sc
