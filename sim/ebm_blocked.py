@@ -410,8 +410,9 @@ def sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, f
 
 def _any_sweeps(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
                 free_slot, node_scale, code, prony, single, relax_a, iterations):
-    """:func:`sweeps`, or with ``single`` (a literal) :func:`sweeps_f32`; compiled code only. (A plain ``if single`` in :func:`step` is not pruned before typing, so the
-    float32 path would be typed for materials it does not support.)"""
+    """:func:`sweeps`, or with ``single`` (a literal) :func:`sweeps_f32`; compiled code only. (A plain ``if single``
+    in :func:`step` is not pruned before typing, so the float32 path would be typed for materials it does not
+    support.)"""
     raise NotImplementedError("sim.ebm_blocked._any_sweeps runs in compiled code only")
 
 
@@ -592,9 +593,8 @@ def _make_variant(code, prony, single):
 # the node pass adds a node's increments two at a time in float32 and accumulates these pair sums in float64 (half the
 # conversions; whole float32 sums were a little faster and moved the zhang_rates block 3-4x further from float64,
 # float64 sums ~5 % slower: docs/ebm.md); positions, the prediction, the velocities and the accounting's sums stay
-# float64. The corner rows hold the
-# displacements u = x - X (float32),
-# so that H = F - I = (u_k - u_0) b_k comes without the cancellation of F - I in single precision.
+# float64. The corner rows hold the displacements u = x - X (float32), so that H = F - I = (u_k - u_0) b_k comes
+# without the cancellation of F - I in single precision.
 _F32_ONE = np.float32(1.0)
 _F32_TWO = np.float32(2.0)
 _F32_THREE = np.float32(3.0)
@@ -778,8 +778,10 @@ def _all_blocks_f32_variant(corners, params, out, code, forces):
 @njit(cache=True, error_model="numpy")
 def _nan_denominators_f32(out):
     """How many of the last float32 sweep's denominators (row ``OUT_W``, padding lanes included) are NaN."""
-    lanes = out.shape[1] // N_OUT  # a run-time trip count: LANES as a constant makes LLVM unroll the row and
-    bad = 0  # vectorise the loop over blocks with gathers instead
+    # a run-time trip count: with LANES as a constant LLVM unrolls the row and vectorises the loop over blocks with
+    # gathers instead
+    lanes = out.shape[1] // N_OUT
+    bad = 0
     for blk in range(out.shape[0]):
         for l in range(lanes):
             d = out[blk, OUT_W * LANES + l]
@@ -813,8 +815,8 @@ def sweeps_f32(x, X, node_index, params, out, corners, free_nodes, free_start, f
     sums of consecutive pairs of incidences; ``x`` is float64.
     ``code`` (a split model) is compiled as a literal.
 
-    NaN multipliers are counted after the last sweep only (a pass over the denominators costs ~3 % of a step when
-    done every sweep): a NaN multiplier of a tet with a free node makes that node's position NaN in the same sweep,
+    NaN multipliers are counted after the last sweep only (a pass over the denominators cost ~4 % of a 504-tet step
+    when done every sweep): a NaN multiplier of a tet with a free node makes that node's position NaN in the same sweep,
     which the finiteness check catches there, and a tet whose nodes are all kinematic has the same multiplier in
     every sweep. Either way the sweeps fail (fewer than ``iterations`` done), as in :func:`sweeps`."""
     literally(code)
