@@ -162,12 +162,16 @@ def test_ebm_viscoelastic_cube_relaxes_and_the_anisotropic_one_pushes_harder():
     t = dt * np.arange(1, steps + 1)
     hold, after_ramp = t > 3.0, t >= 0.5
     ratios = {"visco_over_elastic": [], "visco_hold_over_peak": [], "elastic_hold_over_peak": [], "aniso_over_iso": []}
+    peak_times = []
     for seed in range(16):
         visco = {}
         for name in ("neo_hookean", "anisotropic_neo_hookean"):
             visco[name] = R = _cube_reactions(name, [(0.5, 0.58)], seed, dt, steps)
             assert np.isfinite(R).all() and R.min() > 0.0
-            assert 0.4 < t[np.argmax(R)] <= 0.8  # the peak at the end of the ramp (0.5 s; measured 0.45-0.8)
+            # the peak near the end of the ramp (0.5 s): a single run's step-to-step fluctuation (~5 %) can put
+            # it a step or two early or late (measured 0.4-0.8 s), the ensemble's median sits on the ramp's end
+            peak_times.append(t[np.argmax(R)])
+            assert 0.3 <= peak_times[-1] <= 1.0
             ratios["visco_hold_over_peak"].append(R[hold].mean() / R.max())
             if seed < 4:
                 elastic = _cube_reactions(name, None, seed, dt, steps)
@@ -175,6 +179,7 @@ def test_ebm_viscoelastic_cube_relaxes_and_the_anisotropic_one_pushes_harder():
                 ratios["visco_over_elastic"].append(R[hold].mean() / elastic[hold].mean())
         ratios["aniso_over_iso"].append(visco["anisotropic_neo_hookean"][after_ramp].mean()
                                         / visco["neo_hookean"][after_ramp].mean())
+    assert 0.45 <= np.median(peak_times) <= 0.6
     mean = {key: float(np.mean(value)) for key, value in ratios.items()}
     # stress relaxation: measured 0.63-0.65 of the peak over the last 2 s (0.57-0.71 per run); the elastic
     # model's fluctuating reaction stays at 0.84 of its peak
