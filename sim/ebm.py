@@ -37,6 +37,7 @@ Zhang 5.3.2 cases, so not the default.
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from sim import constitutive, ebm_blocked, ebm_kernels
@@ -180,14 +181,25 @@ class EBM:
         self._corners32 = np.zeros(self._corners.shape if single else (1, 1), np.float32)
         self._f_ext = np.ascontiguousarray(self.f_ext, dtype=np.float64)
         self._last_load_force = np.ascontiguousarray(self._last_load_force, dtype=np.float64)
-        # compiled (on first use) for this material, Prony and precision only
+        # compiled (on first use) for this material, Prony and precision only; the two-thread variant only when a
+        # step takes it (a mesh of PARALLEL_MIN_TETS tets or more and more than one numba thread)
         self._step_kernel, self._sweeps_kernel = ebm_blocked.variant(self._code, self.prony is not None, single)
+        self._large = m.n_tets >= ebm_blocked.PARALLEL_MIN_TETS
         # the step kernel's arguments that do not change between steps (before and after the Prony rows)
         self._step_args = (self._X, self._f_ext, self._w, self._kin_nodes, self._kin_group, self._kin_displacement,
                            self._group_t0, self._group_t1, self._node_index, self._params)
         self._step_args_after = (self._out, self._corners, self._free_nodes, self._free_start, self._free_slot,
                                  self._kin_start, self._kin_slot, self._blocked_scale, self._last_load_force,
                                  m.n_tets, self._params32, self._out32, self._corners32)
+
+    def _blocked_kernels(self):
+        """``(step, sweeps, threads)``: the two-thread variant on a large mesh when numba has more than one thread
+        (the results do not depend on the choice: sim.ebm_blocked, tests/sim/test_threads.py)."""
+        threads = numba.get_num_threads() if self._large else 1
+        if threads == 1:
+            return self._step_kernel, self._sweeps_kernel, 1
+        step, sweeps = ebm_blocked.variant(self._code, self.prony is not None, self.precision == "float32", True)
+        return step, sweeps, threads
 
     def _relaxation(self, h):
         """(a, Gamma, g) of the current Prony history for a step h: ``S^ = a S - Gamma``, ``Psi^ = a Psi - g``."""
@@ -274,15 +286,15 @@ class EBM:
         if self.kernel == "blocked":
             x = np.ascontiguousarray(x, dtype=np.float64)
             _, (a, _, _) = self._relaxation(h)
-            sweeps = self._sweeps_kernel
+            _, sweeps, threads = self._blocked_kernels()
             if self.precision == "float32":
                 done = sweeps(x, self._X, self._node_index, self._params32, self._out32, self._corners32,
                               self._free_nodes, self._free_start, self._free_slot, self._blocked_scale,
-                              self.iterations)
+                              self.iterations, threads)
             else:
                 done = sweeps(x, self._node_index, self._params, self._relax_blocks, self._out, self._corners,
                               self._free_nodes, self._free_start, self._free_slot, self._blocked_scale, a,
-                              self.iterations)
+                              self.iterations, threads)
             if done < self.iterations:
                 raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
             return x
@@ -339,14 +351,14 @@ class EBM:
         v = np.ascontiguousarray(state.v, dtype=np.float64)
         t = state.t
         shape = x.shape
+        kernel, _, threads = self._blocked_kernels()
         for _ in range(self.substeps):
             x_old, v_old = x, v
             x, v = np.empty(shape), np.empty(shape)
             t += h
             a = 1.0 if self.prony is None else self._relaxation(h)[1][0]
-            done, work, strain, stretch = self._step_kernel(x_old, v_old, x, v, t, h, *self._step_args,
-                                                            self._relax_blocks, *self._step_args_after, a,
-                                                            self.iterations)
+            done, work, strain, stretch = kernel(x_old, v_old, x, v, t, h, *self._step_args, self._relax_blocks,
+                                                 *self._step_args_after, a, self.iterations, threads)
             if done < self.iterations:
                 raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
             self.work_in += work

@@ -44,7 +44,7 @@ no reassociation and no finite-math assumption, so the NaN checks keep working) 
 from __future__ import annotations
 
 import numpy as np
-from numba import literally, njit, types
+from numba import literally, njit, prange, types
 from numba.core.errors import TypingError
 from numba.extending import overload
 
@@ -304,23 +304,23 @@ def _lanes(code, prony, forces, c, p, r, out, blk, rblk, relax_a, lanes):
 
 
 @njit(cache=True, inline="always")
-def _blocks(code, prony, forces, corners, params, relax, out, relax_a, lanes):
-    """The lane loop over every block (inlined into one function, so no call per block)."""
+def _blocks(code, prony, forces, corners, params, relax, out, relax_a, lanes, first, last):
+    """The lane loop over blocks ``first:last`` (inlined into one function, so no call per block)."""
     bad = 0
-    for blk in range(corners.shape[0]):
+    for blk in range(first, last):
         bad += _lanes(code, prony, forces, corners, params, relax, out, blk, blk if prony else 0, relax_a, lanes)
     return bad
 
 
-def _all_blocks(corners, params, relax, out, code, prony, forces, relax_a):
-    """The lane loops over every block for one (material ``code``, ``prony``, ``forces``); returns the number of
-    NaN multipliers (sweep only). Compiled code only: ``code``, ``prony`` and ``forces`` must be compile-time
+def _all_blocks(corners, params, relax, out, code, prony, forces, relax_a, first, last):
+    """The lane loops over blocks ``first:last`` for one (material ``code``, ``prony``, ``forces``); returns the
+    number of NaN multipliers (sweep only). Compiled code only: ``code``, ``prony`` and ``forces`` must be compile-time
     constants (literals) at the call, so that a caller compiles the one variant it uses (see the overload)."""
     raise NotImplementedError("sim.ebm_blocked._all_blocks runs in compiled code only")
 
 
 @overload(_all_blocks, prefer_literal=True, jit_options={"error_model": "numpy", "fastmath": {"contract"}})
-def _all_blocks_variant(corners, params, relax, out, code, prony, forces, relax_a):
+def _all_blocks_variant(corners, params, relax, out, code, prony, forces, relax_a, first, last):
     """One implementation per (material, Prony, forces), the three as literal types: the branches on them are
     resolved before the vectoriser runs, and a run compiles only the lane loops of the variants it calls (the
     earlier single function with all 16 inlined loops took ~7 minutes to compile on first use).
@@ -331,9 +331,9 @@ def _all_blocks_variant(corners, params, relax, out, code, prony, forces, relax_
     if c not in (NEO_HOOKEAN, ANISOTROPIC_NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK):
         raise TypingError(f"sim.ebm_blocked: no blocked kernel for material code {c}")
 
-    def impl(corners, params, relax, out, code, prony, forces, relax_a):
+    def impl(corners, params, relax, out, code, prony, forces, relax_a, first, last):
         lanes = corners.shape[1] // N_OUT  # LANES, as a run-time value
-        return _blocks(c, pr, fo, corners, params, relax, out, relax_a, lanes)
+        return _blocks(c, pr, fo, corners, params, relax, out, relax_a, lanes, first, last)
 
     return impl
 
@@ -353,7 +353,7 @@ def sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, f
     of = out.reshape(out.size)
     cf = corners.reshape(corners.size)
     for it in range(iterations):
-        bad = _all_blocks(corners, params, relax, out, code, prony, False, relax_a)
+        bad = _all_blocks(corners, params, relax, out, code, prony, False, relax_a, 0, corners.shape[0])
         finite = bad == 0
         for q in range(free_nodes.shape[0]):
             k0 = free_start[q]
@@ -408,9 +408,181 @@ def sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, f
     return iterations
 
 
+# -- two threads (large meshes; settings-independent: sim.ebm picks this path when numba has > 1 thread) ------------
+# Both passes of a sweep are race-free: a block writes only its own output rows, a node only its own position and its
+# own corner slots. So each pass is split into one contiguous chunk per thread (blocks for the lane pass, free nodes for
+# the node pass, balanced by incidence count), each chunk running the serial code on its range: every tet and every
+# node sum is computed by the same instructions in the same order, and the positions are bit-identical whatever the
+# number of threads (tests/sim/test_threads.py). Two parallel regions per sweep cost a few microseconds, so small
+# meshes keep the serial path (``PARALLEL_MIN_TETS``, measured: docs/ebm.md). The parallel functions are compiled
+# only when a run takes this path.
+PARALLEL_MIN_TETS = 1536
+
+
+@njit(cache=True, inline="always")
+def _chunk_bounds(free_start, n_free, ch, chunks):
+    """First and one-past-last free node of chunk ``ch`` of ``chunks``: consecutive nodes with about the same number
+    of incidences."""
+    total = free_start[n_free]
+    q0 = n_free if ch >= chunks else min(np.searchsorted(free_start, total * ch // chunks), n_free)
+    q1 = n_free if ch + 1 >= chunks else min(np.searchsorted(free_start, total * (ch + 1) // chunks), n_free)
+    return q0, q1
+
+
+@njit(cache=True)
+def _node_range(x, of, cf, free_nodes, free_start, free_slot, node_scale, q0, q1):
+    """The node pass of :func:`sweeps` for free nodes ``q0:q1`` (the same code: sums in tet order, unrolled by two);
+    returns False when a new position is non-finite."""
+    finite = True
+    for q in range(q0, q1):
+        k0 = free_start[q]
+        k1 = free_start[q + 1]
+        ax = 0.0
+        ay = 0.0
+        az = 0.0
+        k = k0
+        while k + 1 < k1:
+            o = free_slot[k]
+            o2 = free_slot[k + 1]
+            ax += of[o]
+            ay += of[o + _L]
+            az += of[o + _L2]
+            ax += of[o2]
+            ay += of[o2 + _L]
+            az += of[o2 + _L2]
+            k += 2
+        if k < k1:
+            o = free_slot[k]
+            ax += of[o]
+            ay += of[o + _L]
+            az += of[o + _L2]
+        i = free_nodes[q]
+        sc = node_scale[i]
+        vx = x[i, 0] + ax * sc
+        vy = x[i, 1] + ay * sc
+        vz = x[i, 2] + az * sc
+        x[i, 0] = vx
+        x[i, 1] = vy
+        x[i, 2] = vz
+        k = k0
+        while k + 1 < k1:
+            o = free_slot[k]
+            o2 = free_slot[k + 1]
+            cf[o] = vx
+            cf[o + _L] = vy
+            cf[o + _L2] = vz
+            cf[o2] = vx
+            cf[o2 + _L] = vy
+            cf[o2 + _L2] = vz
+            k += 2
+        if k < k1:
+            o = free_slot[k]
+            cf[o] = vx
+            cf[o + _L] = vy
+            cf[o + _L2] = vz
+        if not (abs(vx) < np.inf and abs(vy) < np.inf and abs(vz) < np.inf):
+            finite = False
+    return finite
+
+
+@njit(cache=True, parallel=True)
+def node_pass_parallel(x, out, corners, free_nodes, free_start, free_slot, node_scale, chunks):
+    """:func:`sweeps`'s node pass in ``chunks`` ranges of free nodes, one per thread; False when a position is
+    non-finite."""
+    of = out.reshape(out.size)
+    cf = corners.reshape(corners.size)
+    n_free = free_nodes.shape[0]
+    ok = np.ones(chunks, np.bool_)
+    for ch in prange(chunks):
+        q0, q1 = _chunk_bounds(free_start, n_free, ch, chunks)
+        ok[ch] = _node_range(x, of, cf, free_nodes, free_start, free_slot, node_scale, q0, q1)
+    return ok.all()
+
+
+_LANE_PASSES: dict = {}
+
+
+def lane_pass_parallel(code, prony, forces, single=False):
+    """A compiled ``(corners, params, relax, out, relax_a, chunks) -> NaN multipliers`` (float32 with ``single``:
+    ``(corners, params, out, chunks) -> 0``) that runs the lane loop of one (material, Prony, forces) over the blocks
+    in ``chunks`` contiguous ranges, one per thread (the constants are the closure's, so each compiles on first use
+    and is cached on disk, as :func:`variant`)."""
+    key = (int(code), bool(prony), bool(forces), bool(single))
+    if key not in _LANE_PASSES:
+        c, pr, fo = key[:3]
+        if single:
+            @njit(cache=True, parallel=True)
+            def lane_pass(corners, params, out, chunks):
+                nb = corners.shape[0]
+                for ch in prange(chunks):
+                    _all_blocks_f32(corners, params, out, c, fo, nb * ch // chunks, nb * (ch + 1) // chunks)
+                return 0
+        else:
+            @njit(cache=True, parallel=True)
+            def lane_pass(corners, params, relax, out, relax_a, chunks):
+                nb = corners.shape[0]
+                bad = np.zeros(chunks, np.int64)
+                for ch in prange(chunks):
+                    bad[ch] = _all_blocks(corners, params, relax, out, c, pr, fo, relax_a, nb * ch // chunks,
+                                          nb * (ch + 1) // chunks)
+                return bad.sum()
+        _LANE_PASSES[key] = lane_pass
+    return _LANE_PASSES[key]
+
+
+def _parallel_lanes(corners, params, relax, out, code, prony, forces, relax_a, chunks):
+    """:func:`lane_pass_parallel`'s pass for literal (``code``, ``prony``, ``forces``); compiled code only."""
+    raise NotImplementedError("sim.ebm_blocked._parallel_lanes runs in compiled code only")
+
+
+@overload(_parallel_lanes, prefer_literal=True)
+def _parallel_lanes_variant(corners, params, relax, out, code, prony, forces, relax_a, chunks):
+    if not all(isinstance(a, types.Literal) for a in (code, prony, forces)):
+        return None
+    lane_pass = lane_pass_parallel(int(code.literal_value), bool(prony.literal_value), bool(forces.literal_value))
+
+    def impl(corners, params, relax, out, code, prony, forces, relax_a, chunks):
+        return lane_pass(corners, params, relax, out, relax_a, chunks)
+
+    return impl
+
+
+def _parallel_lanes_f32(corners, params, out, code, forces, chunks):
+    """:func:`lane_pass_parallel`'s float32 pass for literal (``code``, ``forces``); compiled code only."""
+    raise NotImplementedError("sim.ebm_blocked._parallel_lanes_f32 runs in compiled code only")
+
+
+@overload(_parallel_lanes_f32, prefer_literal=True)
+def _parallel_lanes_f32_variant(corners, params, out, code, forces, chunks):
+    if not all(isinstance(a, types.Literal) for a in (code, forces)):
+        return None
+    lane_pass = lane_pass_parallel(int(code.literal_value), False, bool(forces.literal_value), single=True)
+
+    def impl(corners, params, out, code, forces, chunks):
+        return lane_pass(corners, params, out, chunks)
+
+    return impl
+
+
+@njit(cache=True)
+def sweeps_parallel(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale, code,
+                    prony, relax_a, iterations, chunks):
+    """:func:`sweeps` with each pass split over ``chunks`` threads (bit-identical results)."""
+    literally(code)
+    literally(prony)
+    load_corners(x, node_index, corners)
+    for it in range(iterations):
+        bad = _parallel_lanes(corners, params, relax, out, code, prony, False, relax_a, chunks)
+        finite = node_pass_parallel(x, out, corners, free_nodes, free_start, free_slot, node_scale, chunks)
+        if not (finite and bad == 0):
+            return it
+    return iterations
+
+
 def _any_sweeps(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
-                free_slot, node_scale, code, prony, single, relax_a, iterations):
-    """:func:`sweeps`, or with ``single`` (a literal) :func:`sweeps_f32`; compiled code only. (A plain ``if single``
+                free_slot, node_scale, code, prony, single, parallel, relax_a, iterations, chunks):
+    """:func:`sweeps`, or with ``single`` (a literal) :func:`sweeps_f32`, or with ``parallel`` (a literal) their
+    versions on ``chunks`` threads; compiled code only. (A plain ``if single``
     in :func:`step` is not pruned before typing, so the float32 path would be typed for materials it does not
     support.)"""
     raise NotImplementedError("sim.ebm_blocked._any_sweeps runs in compiled code only")
@@ -418,42 +590,67 @@ def _any_sweeps(x, X, node_index, params, relax, out, corners, params32, out32, 
 
 @overload(_any_sweeps, prefer_literal=True)
 def _any_sweeps_variant(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes,
-                        free_start, free_slot, node_scale, code, prony, single, relax_a, iterations):
-    if not all(isinstance(a, types.Literal) for a in (code, prony, single)):
+                        free_start, free_slot, node_scale, code, prony, single, parallel, relax_a, iterations, chunks):
+    if not all(isinstance(a, types.Literal) for a in (code, prony, single, parallel)):
         return None
     c, pr = int(code.literal_value), bool(prony.literal_value)
-    if bool(single.literal_value):
+    if bool(single.literal_value) and bool(parallel.literal_value):
         def impl(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
-                 free_slot, node_scale, code, prony, single, relax_a, iterations):
+                 free_slot, node_scale, code, prony, single, parallel, relax_a, iterations, chunks):
+            return sweeps_f32_parallel(x, X, node_index, params32, out32, corners32, free_nodes, free_start,
+                                       free_slot, node_scale, c, iterations, chunks)
+    elif bool(single.literal_value):
+        def impl(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
+                 free_slot, node_scale, code, prony, single, parallel, relax_a, iterations, chunks):
             return sweeps_f32(x, X, node_index, params32, out32, corners32, free_nodes, free_start, free_slot,
                               node_scale, c, iterations)
+    elif bool(parallel.literal_value):
+        def impl(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
+                 free_slot, node_scale, code, prony, single, parallel, relax_a, iterations, chunks):
+            return sweeps_parallel(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot,
+                                   node_scale, c, pr, relax_a, iterations, chunks)
     else:
         def impl(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes, free_start,
-                 free_slot, node_scale, code, prony, single, relax_a, iterations):
+                 free_slot, node_scale, code, prony, single, parallel, relax_a, iterations, chunks):
             return sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale,
                           c, pr, relax_a, iterations)
     return impl
 
 
-def _accounting(corners, params, relax, out, corners32, params32, out32, code, prony, single, relax_a):
+def _accounting(corners, params, relax, out, corners32, params32, out32, code, prony, single, parallel, relax_a,
+                chunks):
     """The energy accounting's lane loop at the positions the sweeps left in the corner rows: ``dW/dx``, ``W`` and
     ``|F|^2`` per tet; returns the flattened output rows (float64, or float32 with ``single``, where it runs the float32
-    loop on the displacement rows ``corners32``). Compiled code only (``code``, ``prony``, ``single`` literals)."""
+    loop on the displacement rows ``corners32``; with ``parallel``, on ``chunks`` threads). Compiled code only (``code``,
+    ``prony``, ``single``, ``parallel`` literals)."""
     raise NotImplementedError("sim.ebm_blocked._accounting runs in compiled code only")
 
 
 @overload(_accounting, prefer_literal=True)
-def _accounting_variant(corners, params, relax, out, corners32, params32, out32, code, prony, single, relax_a):
-    if not all(isinstance(a, types.Literal) for a in (code, prony, single)):
+def _accounting_variant(corners, params, relax, out, corners32, params32, out32, code, prony, single, parallel,
+                        relax_a, chunks):
+    if not all(isinstance(a, types.Literal) for a in (code, prony, single, parallel)):
         return None
     c, pr = int(code.literal_value), bool(prony.literal_value)
-    if bool(single.literal_value):
-        def impl(corners, params, relax, out, corners32, params32, out32, code, prony, single, relax_a):
-            _all_blocks_f32(corners32, params32, out32, c, True)
+    if bool(single.literal_value) and bool(parallel.literal_value):
+        def impl(corners, params, relax, out, corners32, params32, out32, code, prony, single, parallel, relax_a,
+                 chunks):
+            _parallel_lanes_f32(corners32, params32, out32, c, True, chunks)
             return out32.reshape(out32.size)
+    elif bool(single.literal_value):
+        def impl(corners, params, relax, out, corners32, params32, out32, code, prony, single, parallel, relax_a,
+                 chunks):
+            _all_blocks_f32(corners32, params32, out32, c, True, 0, corners32.shape[0])
+            return out32.reshape(out32.size)
+    elif bool(parallel.literal_value):
+        def impl(corners, params, relax, out, corners32, params32, out32, code, prony, single, parallel, relax_a,
+                 chunks):
+            _parallel_lanes(corners, params, relax, out, c, pr, True, relax_a, chunks)
+            return out.reshape(out.size)
     else:
-        def impl(corners, params, relax, out, corners32, params32, out32, code, prony, single, relax_a):
-            _all_blocks(corners, params, relax, out, c, pr, True, relax_a)
+        def impl(corners, params, relax, out, corners32, params32, out32, code, prony, single, parallel, relax_a,
+                 chunks):
+            _all_blocks(corners, params, relax, out, c, pr, True, relax_a, 0, corners.shape[0])
             return out.reshape(out.size)
     return impl
 
@@ -461,7 +658,7 @@ def _accounting_variant(corners, params, relax, out, corners32, params32, out32,
 @njit(cache=True)
 def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_displacement, group_t0, group_t1,
          node_index, params, relax, out, corners, free_nodes, free_start, free_slot, kin_start, kin_slot, node_scale,
-         last_load, n_tets, params32, out32, corners32, code, prony, single, relax_a, iterations):
+         last_load, n_tets, params32, out32, corners32, code, prony, single, parallel, relax_a, iterations, chunks):
     """One EBM step of length ``h`` ending at time ``t``, from (``x_prev``, ``v_prev``) into (``x``, ``v``):
 
     1. prediction 5.13, ``x = x_prev + h (v_prev + h f_ext w)``, kinematic nodes at their targets
@@ -477,10 +674,12 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
     ``single`` are compiled as literals (one specialisation per material and Prony in use). ``single``: the sweeps
     run :func:`sweeps_f32` on ``params32``, ``out32``, ``corners32`` and the accounting's lane loop in float32 on the
     displacement rows the sweeps leave there (positions, prediction, velocities and the sums of the accounting stay
-    float64)."""
+    float64). ``parallel`` (a literal): the sweeps' and the accounting's passes on ``chunks`` threads (bit-identical
+    results; the parallel functions compile only for such a variant)."""
     literally(code)
     literally(prony)
     literally(single)
+    literally(parallel)
     n = x.shape[0]
     for i in range(n):
         for d in range(3):
@@ -501,14 +700,15 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
             for d in range(3):
                 x[i, d] = X[i, d] + frac * kin_displacement[q, d]
     done = _any_sweeps(x, X, node_index, params, relax, out, corners, params32, out32, corners32, free_nodes,
-                       free_start, free_slot, node_scale, code, prony, single, relax_a, iterations)
+                       free_start, free_slot, node_scale, code, prony, single, parallel, relax_a, iterations, chunks)
     for i in range(n):
         for d in range(3):
             v[i, d] = (x[i, d] - x_prev[i, d]) / h
     if done < iterations:
         return done, 0.0, 0.0, 0.0
     # accounting: dW/dx, W and |F|^2 per tet at the new positions (the corners hold them; float32 with single)
-    of = _accounting(corners, params, relax, out, corners32, params32, out32, code, prony, single, relax_a)
+    of = _accounting(corners, params, relax, out, corners32, params32, out32, code, prony, single, parallel, relax_a,
+                     chunks)
     strain = 0.0
     FF = 0.0
     for t in range(n_tets):
@@ -546,15 +746,17 @@ def step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_disp
 _VARIANTS: dict = {}
 
 
-def variant(code, prony, single=False):
-    """``(step, sweeps)`` for one material ``code``, ``prony`` flag and precision (``single``: the float32 sweeps of
-    :func:`sweeps_f32`, split models without Prony only): :func:`step` and :func:`sweeps` (or :func:`sweeps_f32`)
-    without their literal arguments, compiled (on first use, cached on disk) for that combination only.
+def variant(code, prony, single=False, parallel=False):
+    """``(step, sweeps)`` for one material ``code``, ``prony`` flag, precision (``single``: the float32 sweeps of
+    :func:`sweeps_f32`, split models without Prony only) and threading (``parallel``: each pass split over the
+    ``chunks`` threads given as the last argument of both, :func:`sweeps_parallel`; the serial variants take and ignore
+    it): :func:`step` and :func:`sweeps` (or :func:`sweeps_f32`) without their literal arguments, compiled (on first
+    use, cached on disk) for that combination only.
 
     ``step`` and ``sweeps`` take ``code`` and ``prony`` as literals (``numba.literally``): called from Python with
     plain values, every call would go through the literal re-dispatch (~0.1 s); these wrappers pass them as
     compile-time constants, so a call costs what an ordinary compiled call does."""
-    key = (int(code), bool(prony), bool(single))
+    key = (int(code), bool(prony), bool(single), bool(parallel))
     if single and (prony or key[0] not in (NEO_HOOKEAN, ANISOTROPIC_NEO_HOOKEAN)):
         raise ValueError("ebm: precision float32 supports neo_hookean and anisotropic_neo_hookean without Prony only")
     if key not in _VARIANTS:
@@ -562,26 +764,39 @@ def variant(code, prony, single=False):
     return _VARIANTS[key]
 
 
-def _make_variant(code, prony, single):
-    @njit(cache=True)  # the closure's constants are part of numba's cache key: one entry per (code, prony, single)
+def _make_variant(code, prony, single, parallel):
+    # the closure's constants are part of numba's cache key: one entry per (code, prony, single, parallel)
+    @njit(cache=True)
     def step_variant(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_displacement, group_t0,
                      group_t1, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, kin_start,
-                     kin_slot, node_scale, last_load, n_tets, params32, out32, corners32, relax_a, iterations):
+                     kin_slot, node_scale, last_load, n_tets, params32, out32, corners32, relax_a, iterations, chunks):
         return step(x_prev, v_prev, x, v, t, h, X, f_ext, w, kin_nodes, kin_group, kin_displacement, group_t0,
                     group_t1, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, kin_start,
-                    kin_slot, node_scale, last_load, n_tets, params32, out32, corners32, code, prony, single, relax_a,
-                    iterations)
+                    kin_slot, node_scale, last_load, n_tets, params32, out32, corners32, code, prony, single, parallel,
+                    relax_a, iterations, chunks)
 
-    if single:
+    if single and parallel:
         @njit(cache=True)
         def sweeps_variant(x, X, node_index, params32, out32, corners32, free_nodes, free_start, free_slot,
-                           node_scale, iterations):
+                           node_scale, iterations, chunks):
+            return sweeps_f32_parallel(x, X, node_index, params32, out32, corners32, free_nodes, free_start,
+                                       free_slot, node_scale, code, iterations, chunks)
+    elif single:
+        @njit(cache=True)
+        def sweeps_variant(x, X, node_index, params32, out32, corners32, free_nodes, free_start, free_slot,
+                           node_scale, iterations, chunks):
             return sweeps_f32(x, X, node_index, params32, out32, corners32, free_nodes, free_start, free_slot,
                               node_scale, code, iterations)
+    elif parallel:
+        @njit(cache=True)
+        def sweeps_variant(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale,
+                           relax_a, iterations, chunks):
+            return sweeps_parallel(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot,
+                                   node_scale, code, prony, relax_a, iterations, chunks)
     else:
         @njit(cache=True)
         def sweeps_variant(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale,
-                           relax_a, iterations):
+                           relax_a, iterations, chunks):
             return sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, free_slot, node_scale,
                           code, prony, relax_a, iterations)
 
@@ -752,13 +967,13 @@ def _lanes_f32(fibre, forces, c, p, out, blk, lanes):
         out[blk, (OUT_D + 11) * LANES + l] = s * g3z
 
 
-def _all_blocks_f32(corners, params, out, code, forces):
-    """Every block's float32 lane loop (``code`` and ``forces`` literals; a split model). Compiled code only."""
+def _all_blocks_f32(corners, params, out, code, forces, first, last):
+    """The float32 lane loop of blocks ``first:last`` (``code`` and ``forces`` literals; a split model). Compiled code only."""
     raise NotImplementedError("sim.ebm_blocked._all_blocks_f32 runs in compiled code only")
 
 
 @overload(_all_blocks_f32, prefer_literal=True, jit_options={"error_model": "numpy", "fastmath": {"contract"}})
-def _all_blocks_f32_variant(corners, params, out, code, forces):
+def _all_blocks_f32_variant(corners, params, out, code, forces, first, last):
     """fastmath: only "contract"."""
     if not (isinstance(code, types.Literal) and isinstance(forces, types.Literal)):
         return None
@@ -767,9 +982,9 @@ def _all_blocks_f32_variant(corners, params, out, code, forces):
         raise TypingError(f"sim.ebm_blocked: no float32 kernel for material code {c} (split models only)")
     fi = c == ANISOTROPIC_NEO_HOOKEAN
 
-    def impl(corners, params, out, code, forces):
+    def impl(corners, params, out, code, forces, first, last):
         lanes = corners.shape[1] // N_OUT
-        for blk in range(corners.shape[0]):
+        for blk in range(first, last):
             _lanes_f32(fi, fo, corners, params, out, blk, lanes)
 
     return impl
@@ -824,7 +1039,7 @@ def sweeps_f32(x, X, node_index, params, out, corners, free_nodes, free_start, f
     of = out.reshape(out.size)
     cf = corners.reshape(corners.size)
     for it in range(iterations):
-        _all_blocks_f32(corners, params, out, code, False)
+        _all_blocks_f32(corners, params, out, code, False, 0, corners.shape[0])
         finite = True
         for q in range(free_nodes.shape[0]):
             k0 = free_start[q]
@@ -875,6 +1090,91 @@ def sweeps_f32(x, X, node_index, params, out, corners, free_nodes, free_start, f
             if not (abs(vx) < np.inf and abs(vy) < np.inf and abs(vz) < np.inf):
                 finite = False
         if not finite:
+            return it
+    if iterations > 0 and _nan_denominators_f32(out) > 0:
+        return iterations - 1
+    return iterations
+
+
+@njit(cache=True)
+def _node_range_f32(x, X, of, cf, free_nodes, free_start, free_slot, node_scale, q0, q1):
+    """The node pass of :func:`sweeps_f32` for free nodes ``q0:q1`` (the same code); False when a position is
+    non-finite."""
+    finite = True
+    for q in range(q0, q1):
+        k0 = free_start[q]
+        k1 = free_start[q + 1]
+        ax = 0.0
+        ay = 0.0
+        az = 0.0
+        k = k0
+        while k + 1 < k1:
+            o = free_slot[k]
+            o2 = free_slot[k + 1]
+            ax += np.float64(of[o] + of[o2])
+            ay += np.float64(of[o + _L] + of[o2 + _L])
+            az += np.float64(of[o + _L2] + of[o2 + _L2])
+            k += 2
+        if k < k1:
+            o = free_slot[k]
+            ax += np.float64(of[o])
+            ay += np.float64(of[o + _L])
+            az += np.float64(of[o + _L2])
+        i = free_nodes[q]
+        sc = node_scale[i]
+        vx = x[i, 0] + ax * sc
+        vy = x[i, 1] + ay * sc
+        vz = x[i, 2] + az * sc
+        x[i, 0] = vx
+        x[i, 1] = vy
+        x[i, 2] = vz
+        ux = np.float32(vx - X[i, 0])
+        uy = np.float32(vy - X[i, 1])
+        uz = np.float32(vz - X[i, 2])
+        k = k0
+        while k + 1 < k1:
+            o = free_slot[k]
+            o2 = free_slot[k + 1]
+            cf[o] = ux
+            cf[o + _L] = uy
+            cf[o + _L2] = uz
+            cf[o2] = ux
+            cf[o2 + _L] = uy
+            cf[o2 + _L2] = uz
+            k += 2
+        if k < k1:
+            o = free_slot[k]
+            cf[o] = ux
+            cf[o + _L] = uy
+            cf[o + _L2] = uz
+        if not (abs(vx) < np.inf and abs(vy) < np.inf and abs(vz) < np.inf):
+            finite = False
+    return finite
+
+
+@njit(cache=True, parallel=True)
+def node_pass_f32_parallel(x, X, out, corners, free_nodes, free_start, free_slot, node_scale, chunks):
+    """:func:`sweeps_f32`'s node pass in ``chunks`` ranges of free nodes, one per thread; False when a position is
+    non-finite."""
+    of = out.reshape(out.size)
+    cf = corners.reshape(corners.size)
+    n_free = free_nodes.shape[0]
+    ok = np.ones(chunks, np.bool_)
+    for ch in prange(chunks):
+        q0, q1 = _chunk_bounds(free_start, n_free, ch, chunks)
+        ok[ch] = _node_range_f32(x, X, of, cf, free_nodes, free_start, free_slot, node_scale, q0, q1)
+    return ok.all()
+
+
+@njit(cache=True)
+def sweeps_f32_parallel(x, X, node_index, params, out, corners, free_nodes, free_start, free_slot, node_scale, code,
+                        iterations, chunks):
+    """:func:`sweeps_f32` with each pass split over ``chunks`` threads (bit-identical results)."""
+    literally(code)
+    load_displacements_f32(x, X, node_index, corners)
+    for it in range(iterations):
+        _parallel_lanes_f32(corners, params, out, code, False, chunks)
+        if not node_pass_f32_parallel(x, X, out, corners, free_nodes, free_start, free_slot, node_scale, chunks):
             return it
     if iterations > 0 and _nan_denominators_f32(out) > 0:
         return iterations - 1

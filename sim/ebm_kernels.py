@@ -47,7 +47,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from sim.xpbd_kernels import _cofactor, _defgrad, _node_grads
 
@@ -306,6 +306,105 @@ def forces_and_energy(x, f, tets, Dm_inv, volume, mu, lam, eta, fibre, code, pro
         f[i3, 1] -= g[7]
         f[i3, 2] -= g[8]
     return total, np.sqrt(FF / 3.0)
+
+
+# -- two threads (explicit, cnn on large meshes: sim.forces) -----------------------------------------------------------
+# forces_and_energy scatters every tet's node forces into f, which is not race-free across threads. Its two-thread
+# version splits it into a per-tet pass (each tet writes its four corner contributions to its own rows) and a per-node
+# gather that adds a node's contributions in increasing tet order, from 0: the additions the scatter makes, in the same
+# order (``f -= g`` is stored as ``+(-g)``, which is exact), so the forces are bit-identical to forces_and_energy's for
+# any number of threads (tests/sim/test_threads.py). Used from PARALLEL_MIN_TETS tets with more than one numba thread
+# (measured crossover: docs/integrators-zhang.md); compiled only then.
+PARALLEL_MIN_TETS = 1024
+
+
+def node_incidences(tets, n_nodes):
+    """``(start (n_nodes + 1,), corner (4 m,))`` int64: node i's incidences are the flat corner indices
+    ``4 t + k`` (``tets[t, k] == i``) ``corner[start[i]:start[i + 1]]``, in increasing tet order."""
+    flat = np.asarray(tets, dtype=np.int64).ravel()
+    corner = np.argsort(flat, kind="stable").astype(np.int64)  # stable: by node, then by tet (and corner)
+    start = np.searchsorted(flat[corner], np.arange(n_nodes + 1)).astype(np.int64)
+    return start, corner
+
+
+@njit(cache=True)
+def _contributions(x, tets, Dm_inv, volume, mu, lam, eta, fibre, code, prony, relax_a, Gamma, g_sum, contrib, tet_W,
+                   tet_FF, t0, t1):
+    """Tets ``t0:t1``: each tet's energy, ``|F|^2`` and the four contributions :func:`forces_and_energy` adds to its
+    nodes' forces (rows ``4 t + k`` of ``contrib``; ``f -= g`` stored as ``-g``)."""
+    for t in range(t0, t1):
+        W, g = _tet_energy_gradient(t, x, tets, Dm_inv, volume, mu, lam, eta, fibre, code, prony, relax_a, Gamma,
+                                    g_sum)
+        tet_W[t] = W
+        F = _defgrad(x, tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3], Dm_inv, t)
+        tet_FF[t] = (F[0] * F[0] + F[1] * F[1] + F[2] * F[2] + F[3] * F[3] + F[4] * F[4] + F[5] * F[5]
+                     + F[6] * F[6] + F[7] * F[7] + F[8] * F[8])
+        r = 4 * t
+        contrib[r, 0] = g[0] + g[3] + g[6]
+        contrib[r, 1] = g[1] + g[4] + g[7]
+        contrib[r, 2] = g[2] + g[5] + g[8]
+        contrib[r + 1, 0] = -g[0]
+        contrib[r + 1, 1] = -g[1]
+        contrib[r + 1, 2] = -g[2]
+        contrib[r + 2, 0] = -g[3]
+        contrib[r + 2, 1] = -g[4]
+        contrib[r + 2, 2] = -g[5]
+        contrib[r + 3, 0] = -g[6]
+        contrib[r + 3, 1] = -g[7]
+        contrib[r + 3, 2] = -g[8]
+
+
+@njit(cache=True)
+def _gather(f, start, corner, contrib, i0, i1):
+    """Nodes ``i0:i1``: the sum of their contributions from 0, in tet order."""
+    for i in range(i0, i1):
+        fx = 0.0
+        fy = 0.0
+        fz = 0.0
+        for k in range(start[i], start[i + 1]):
+            c = corner[k]
+            fx += contrib[c, 0]
+            fy += contrib[c, 1]
+            fz += contrib[c, 2]
+        f[i, 0] = fx
+        f[i, 1] = fy
+        f[i, 2] = fz
+
+
+@njit(cache=True, parallel=True)
+def forces_and_energy_parallel(x, f, tets, Dm_inv, volume, mu, lam, eta, fibre, code, prony, relax_a, Gamma, g_sum,
+                               start, corner, contrib, tet_W, tet_FF, chunks):
+    """:func:`forces_and_energy` in ``chunks`` ranges (one per thread), bit-identical for any ``chunks``: the
+    per-tet pass (energy, ``|F|^2``, four corner contributions into ``contrib (4 m, 3)``), then the per-node gather of
+    the contributions in tet order (``start``, ``corner``: :func:`node_incidences`), then the energy summed in tet
+    order. ``tet_W``, ``tet_FF`` (m,) are scratch."""
+    m = tets.shape[0]
+    n = f.shape[0]
+    for ch in prange(chunks):
+        _contributions(x, tets, Dm_inv, volume, mu, lam, eta, fibre, code, prony, relax_a, Gamma, g_sum, contrib,
+                       tet_W, tet_FF, m * ch // chunks, m * (ch + 1) // chunks)
+    for ch in prange(chunks):
+        _gather(f, start, corner, contrib, n * ch // chunks, n * (ch + 1) // chunks)
+    total = 0.0
+    FF = 0.0
+    for t in range(m):
+        total += tet_W[t]
+        FF = max(FF, tet_FF[t])
+    return total, np.sqrt(FF / 3.0)
+
+
+@njit(cache=True, parallel=True)
+def count_inverted_parallel(x, tets):
+    """:func:`count_inverted` on all threads (an integer count: the same for any number of threads)."""
+    n = 0
+    for t in prange(tets.shape[0]):
+        i0 = tets[t, 0]
+        ax, ay, az = x[tets[t, 1], 0] - x[i0, 0], x[tets[t, 1], 1] - x[i0, 1], x[tets[t, 1], 2] - x[i0, 2]
+        bx, by, bz = x[tets[t, 2], 0] - x[i0, 0], x[tets[t, 2], 1] - x[i0, 1], x[tets[t, 2], 2] - x[i0, 2]
+        cx, cy, cz = x[tets[t, 3], 0] - x[i0, 0], x[tets[t, 3], 1] - x[i0, 1], x[tets[t, 3], 2] - x[i0, 2]
+        if not ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx) > 0.0:
+            n += 1
+    return n
 
 
 @njit(cache=True)

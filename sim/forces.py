@@ -11,6 +11,7 @@ models with element pressure; ``kernel = "numpy"``, Valanis–Landel curves and 
 """
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from sim import constitutive, ebm_kernels, linear_fem
@@ -43,6 +44,9 @@ class Accelerations:
                 np.ascontiguousarray(np.zeros(m) if eta is None else eta, dtype=np.float64),
                 np.ascontiguousarray(np.zeros((m, 3)) if a0 is None else a0, dtype=np.float64),
                 ebm_kernels.MATERIALS[name], False, 1.0, np.zeros((1, 3, 3)), np.zeros(1))
+        # two threads on large meshes (bit-identical forces; sim.ebm_kernels.forces_and_energy_parallel)
+        self._large = model.n_tets >= ebm_kernels.PARALLEL_MIN_TETS
+        self._parallel_scratch = None
         self.alpha = float(settings.get("rayleigh_alpha", 0.0))
         self.beta = float(settings.get("rayleigh_beta", 0.0))
         need_K = self.force_model == "linear_fem" or self.beta != 0.0
@@ -61,7 +65,12 @@ class Accelerations:
     def __call__(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         if self._kernel_args is not None:
             f = np.empty((x.shape[0], 3))
-            ebm_kernels.forces_and_energy(np.ascontiguousarray(x, dtype=np.float64), f, *self._kernel_args)
+            x = np.ascontiguousarray(x, dtype=np.float64)
+            threads = self._threads()
+            if threads > 1:
+                ebm_kernels.forces_and_energy_parallel(x, f, *self._kernel_args, *self._scratch(), threads)
+            else:
+                ebm_kernels.forces_and_energy(x, f, *self._kernel_args)
         elif self.force_model == "constitutive":
             f = constitutive.elastic_forces(self.model, x)
         else:
@@ -73,11 +82,27 @@ class Accelerations:
         a[self.kinematic] = 0.0
         return a
 
+    def _threads(self) -> int:
+        return numba.get_num_threads() if self._large else 1
+
+    def _scratch(self):
+        """Incidence lists and per-tet scratch of the two-thread force kernel (built on first use)."""
+        if self._parallel_scratch is None:
+            m = self.model.n_tets
+            start, corner = ebm_kernels.node_incidences(self._tets, self.model.n_nodes)
+            self._parallel_scratch = (start, corner, np.empty((4 * m, 3)), np.empty(m), np.empty(m))
+        return self._parallel_scratch
+
+    def _count_inverted(self, x: np.ndarray) -> int:
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        if self._threads() > 1:
+            return int(ebm_kernels.count_inverted_parallel(x, self._tets))
+        return int(ebm_kernels.count_inverted(x, self._tets))
+
     def start(self, x: np.ndarray) -> None:
         """Note how many elements are inverted in the first state the integrator steps from."""
         if self.inverted_at_start is None:
-            self.inverted_at_start = int(ebm_kernels.count_inverted(np.ascontiguousarray(x, dtype=np.float64),
-                                                                    self._tets))
+            self.inverted_at_start = self._count_inverted(x)
 
     def check(self, x: np.ndarray, t: float, h: float | None = None) -> None:
         """Raise SimulationDiverged for non-finite or runaway positions (never return NaN frames), and when
@@ -93,7 +118,7 @@ class Accelerations:
                                      f"body's size: the integration diverged; reduce dt")
         if self.force_model != "constitutive":
             return  # linear FEM forces are linear in x: an inverted element is only a large displacement there
-        inverted = int(ebm_kernels.count_inverted(np.ascontiguousarray(x, dtype=np.float64), self._tets))
+        inverted = self._count_inverted(x)
         if inverted > (self.inverted_at_start or 0):
             step = "" if h is None else f"the step {h:.3g} s against "
             raise SimulationDiverged(
