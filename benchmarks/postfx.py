@@ -1,6 +1,6 @@
 """Post-effects cost: milliseconds per effect on a 640x480 frame, NumPy reference vs OSMesa GLSL.
 
-Usage: .venv/bin/python benchmarks/postfx.py [--quick] [--refresh-frame] [--pause-ms 50]
+Usage: .venv/bin/python benchmarks/postfx.py [--quick] [--refresh-frame] [--pause-ms 50] [--backends numpy,osmesa]
 Two frames, each through the whole chain of all ten effects:
 - synthetic (the keys without suffix): uniform random HDR in [0, 3] with a 60x highlight, depth
   uniform random per pixel in [0.05, 0.25] m (focus 0.1 m, aperture 2 mm, max CoC 8 px): every pixel
@@ -24,7 +24,9 @@ osmesa chain pass by pass ("<pass>[+fused effects] <width>x<height>", plus the D
 the read-back), each draw waited for before and after, medians over the runs after the chains.
 Each figure is the median of several runs after one warm-up (compilation, context creation); every
 timed chain starts after a 50 ms pause (PAUSE_S: numba's OpenMP workers stop spinning); the effects
-alone run back to back, each backend's runs together.
+alone run back to back, each backend's runs together. ``--backends osmesa`` (or ``numpy``) times one
+backend in the process (no ratio keys): a program uses one backend, and the rendered frame's osmesa
+chain ran 33-34 ms alone but 43-51 ms right after numpy chains in the same process (docs/postfx.md).
 """
 from __future__ import annotations
 
@@ -171,10 +173,15 @@ def main() -> None:
     parser.add_argument("--refresh-frame", action="store_true", help="render the liver_probe frame again")
     parser.add_argument("--pause-ms", type=float, default=50.0,
                         help="idle time before each timed run (default %(default)s; 0: back to back)")
+    parser.add_argument("--backends", default="numpy,osmesa",
+                        help="comma-separated backends to time in this process (default %(default)s)")
     args = parser.parse_args()
     _set_pause(args.pause_ms * 1e-3)
     repeats = 5 if args.quick else 15
-    backends = ["numpy"] + (["osmesa"] if osmesa.library_available() else [])
+    asked = [b.strip() for b in args.backends.split(",") if b.strip()]
+    if not asked or set(asked) - {"numpy", "osmesa"}:
+        parser.error("--backends takes numpy and/or osmesa")
+    backends = [b for b in ("numpy", "osmesa") if b in asked and (b == "numpy" or osmesa.library_available())]
     result: dict = {}
     frames = {"": synthetic_frame(), "_rendered": rendered_frame(args.refresh_frame)}
     for suffix, (hdr, depth, lens, chain) in frames.items():
@@ -186,7 +193,7 @@ def main() -> None:
             result[f"{backend}_ms_total{suffix}"] = round(total, 2)
             result[f"{backend}_cpu_ms_total{suffix}"] = round(cpu_ms, 2)
             print(f"{label:9s} {backend:7s} chain total {total:8.2f} ms (CPU time of all threads {cpu_ms:8.2f} ms)")
-        if "osmesa" in backends:
+        if backends == ["numpy", "osmesa"]:
             ratio = float(np.median([o.total_seconds / n.total_seconds for n, o in zip(runs["numpy"], runs["osmesa"])]))
             result[f"osmesa_over_numpy{suffix}"] = round(ratio, 3)
             print(f"{label:9s} osmesa / numpy (median of {repeats} back-to-back runs): {ratio:.3f}")
@@ -207,7 +214,7 @@ def main() -> None:
             result[f"{name}_{backend}_ms"] = round(ms[(name, backend)], 2)
             print(f"{backend:7s} {name:22s} {ms[(name, backend)]:8.2f} ms (alone)")
         result[f"{backend}_ms_core"] = round(sum(ms[(n, backend)] for n in CORE), 2)
-    if "osmesa" not in backends:
+    if "osmesa" in asked and "osmesa" not in backends:
         result["osmesa_ms_total"] = result["osmesa_ms_total_rendered"] = None
         result["osmesa_skipped"] = "libOSMesa missing (Debian package libosmesa6)"
     result["machine"] = (f"{platform.machine()} {os.cpu_count()} cpus, numba threads {numba.get_num_threads()}, "
