@@ -220,10 +220,10 @@ DOF_GROUP = (2, 2)
 
 def _dof_gather(kx: int, ky: int, rows: int = DOF_GROUP[0], cols: int = DOF_GROUP[1]) -> str:
     """Scatter-as-gather over a block of kx x ky outputs: each source texel fetched once is tested against
-    all the block's outputs (one fetch for 16 outputs). Each output goes
-    straight into the image ``dof_out`` with imageStore, after the pointwise epilogue (``post()``): no
-    draw-buffer limit on the block (4 x 4: 16 outputs, where draw buffers allow 8) and no pass to
-    reassemble the blocks. The fragment's own colour output is a dummy.
+    all the block's outputs (one fetch for 16 outputs). Each output goes straight into the image
+    ``dof_out`` with imageStore, after the pointwise epilogue (``post()``): no draw-buffer limit on the
+    block (4 x 4: 16 outputs, where draw buffers allow 8) and no pass to reassemble the blocks. The
+    fragment's own colour output is a dummy.
 
     The loops step over groups of ``rows`` x ``cols`` source texels (DOF_GROUP): the rows 2 rr + ky of
     the bound and each row's 2 span + kx texels divide exactly (ky % rows == kx % cols == 0), and a
