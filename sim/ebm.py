@@ -34,6 +34,8 @@ and energy accounting) in float32 (16 tets per AVX-512 register; Neo-Hookean and
 Prony only; node sums in float64 over float32 pairs; positions, prediction and velocities stay float64).
 Its deviation from float64 is measured in docs/ebm.md: as large as a 1e-13 m perturbation of a float64 run on the
 Zhang 5.3.2 cases, so not the default.
+With more than one numba thread, meshes of ``sim.ebm_blocked.PARALLEL_MIN_TETS`` tets or more run the blocked sweeps on
+all threads, bit-identical to one thread (docs/ebm.md, "Two threads").
 """
 from __future__ import annotations
 

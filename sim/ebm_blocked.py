@@ -33,8 +33,10 @@ float32 on displacement rows (16 lanes per zmm register), the node pass adds eac
 float32 and accumulates the pair sums in float64, and the energy accounting runs the float32 lane loop on the same
 rows; positions, prediction and velocities stay float64 (end of this module).
 
-Each run compiles only the variants it uses: ``code``, ``prony`` and the precision are literals, and
-:func:`variant` returns compiled closures that pass them as constants.
+Each run compiles only the variants it uses: ``code``, ``prony``, the precision and the threading are literals, and
+:func:`variant` returns compiled closures that pass them as constants. Large meshes with more than one numba thread
+take :func:`sweeps_parallel` / :func:`sweeps_f32_parallel` (each pass split into one chunk of blocks or free nodes per
+thread, bit-identical to the serial sweeps; "two threads" below).
 
 Kernels use ``fastmath={"contract"}`` only (fused multiply-add: one rounding instead of two, nothing else;
 no reassociation and no finite-math assumption, so the NaN checks keep working) and ``error_model="numpy"``

@@ -7,7 +7,9 @@ model's own nonlinear material) or from the linear FEM stiffness ``f_int = -K (x
 and ``rayleigh_beta`` [s]). The constitutive forces run in the per-tet numba kernel of
 ``sim.ebm_kernels`` (``kernel = "numba"``, default) for StVK and the (stable / anisotropic) Neo-Hookean
 models with element pressure; ``kernel = "numpy"``, Valanis–Landel curves and average nodal pressure use
-``sim.constitutive`` (the reference the kernel is tested against).
+``sim.constitutive`` (the reference the kernel is tested against). From ``ebm_kernels.PARALLEL_MIN_TETS`` tets with
+more than one numba thread, the kernel's two-thread version (per-tet contributions, then a per-node gather in tet
+order: bit-identical forces for any thread count).
 """
 from __future__ import annotations
 
