@@ -426,7 +426,7 @@ def _chunk_bounds(free_start, n_free, ch, chunks):
     """First and one-past-last free node of chunk ``ch`` of ``chunks``: consecutive nodes with about the same number
     of incidences."""
     total = free_start[n_free]
-    q0 = n_free if ch >= chunks else min(np.searchsorted(free_start, total * ch // chunks), n_free)
+    q0 = min(np.searchsorted(free_start, total * ch // chunks), n_free)
     q1 = n_free if ch + 1 >= chunks else min(np.searchsorted(free_start, total * (ch + 1) // chunks), n_free)
     return q0, q1
 
