@@ -357,54 +357,8 @@ def sweeps(x, node_index, params, relax, out, corners, free_nodes, free_start, f
     for it in range(iterations):
         bad = _all_blocks(corners, params, relax, out, code, prony, False, relax_a, 0, corners.shape[0])
         finite = bad == 0
-        for q in range(free_nodes.shape[0]):
-            k0 = free_start[q]
-            k1 = free_start[q + 1]
-            ax = 0.0
-            ay = 0.0
-            az = 0.0
-            k = k0
-            while k + 1 < k1:  # unrolled by two by hand, the additions in tet order (docs/ebm.md)
-                o = free_slot[k]
-                o2 = free_slot[k + 1]
-                ax += of[o]
-                ay += of[o + _L]
-                az += of[o + _L2]
-                ax += of[o2]
-                ay += of[o2 + _L]
-                az += of[o2 + _L2]
-                k += 2
-            if k < k1:
-                o = free_slot[k]
-                ax += of[o]
-                ay += of[o + _L]
-                az += of[o + _L2]
-            i = free_nodes[q]
-            sc = node_scale[i]
-            vx = x[i, 0] + ax * sc
-            vy = x[i, 1] + ay * sc
-            vz = x[i, 2] + az * sc
-            x[i, 0] = vx
-            x[i, 1] = vy
-            x[i, 2] = vz
-            k = k0
-            while k + 1 < k1:
-                o = free_slot[k]
-                o2 = free_slot[k + 1]
-                cf[o] = vx
-                cf[o + _L] = vy
-                cf[o + _L2] = vz
-                cf[o2] = vx
-                cf[o2 + _L] = vy
-                cf[o2 + _L2] = vz
-                k += 2
-            if k < k1:
-                o = free_slot[k]
-                cf[o] = vx
-                cf[o + _L] = vy
-                cf[o + _L2] = vz
-            if not (abs(vx) < np.inf and abs(vy) < np.inf and abs(vz) < np.inf):
-                finite = False
+        if not _node_range(x, of, cf, free_nodes, free_start, free_slot, node_scale, 0, free_nodes.shape[0]):
+            finite = False
         if not finite:
             return it
     return iterations
@@ -1042,55 +996,7 @@ def sweeps_f32(x, X, node_index, params, out, corners, free_nodes, free_start, f
     cf = corners.reshape(corners.size)
     for it in range(iterations):
         _all_blocks_f32(corners, params, out, code, False, 0, corners.shape[0])
-        finite = True
-        for q in range(free_nodes.shape[0]):
-            k0 = free_start[q]
-            k1 = free_start[q + 1]
-            ax = 0.0
-            ay = 0.0
-            az = 0.0
-            k = k0
-            while k + 1 < k1:  # two incidences at a time, their float32 sum added to the float64 sum (docs/ebm.md)
-                o = free_slot[k]
-                o2 = free_slot[k + 1]
-                ax += np.float64(of[o] + of[o2])
-                ay += np.float64(of[o + _L] + of[o2 + _L])
-                az += np.float64(of[o + _L2] + of[o2 + _L2])
-                k += 2
-            if k < k1:
-                o = free_slot[k]
-                ax += np.float64(of[o])
-                ay += np.float64(of[o + _L])
-                az += np.float64(of[o + _L2])
-            i = free_nodes[q]
-            sc = node_scale[i]
-            vx = x[i, 0] + ax * sc
-            vy = x[i, 1] + ay * sc
-            vz = x[i, 2] + az * sc
-            x[i, 0] = vx
-            x[i, 1] = vy
-            x[i, 2] = vz
-            ux = np.float32(vx - X[i, 0])
-            uy = np.float32(vy - X[i, 1])
-            uz = np.float32(vz - X[i, 2])
-            k = k0
-            while k + 1 < k1:
-                o = free_slot[k]
-                o2 = free_slot[k + 1]
-                cf[o] = ux
-                cf[o + _L] = uy
-                cf[o + _L2] = uz
-                cf[o2] = ux
-                cf[o2 + _L] = uy
-                cf[o2 + _L2] = uz
-                k += 2
-            if k < k1:
-                o = free_slot[k]
-                cf[o] = ux
-                cf[o + _L] = uy
-                cf[o + _L2] = uz
-            if not (abs(vx) < np.inf and abs(vy) < np.inf and abs(vz) < np.inf):
-                finite = False
+        finite = _node_range_f32(x, X, of, cf, free_nodes, free_start, free_slot, node_scale, 0, free_nodes.shape[0])
         if not finite:
             return it
     if iterations > 0 and _nan_denominators_f32(out) > 0:
