@@ -393,17 +393,22 @@ def forces_and_energy_parallel(x, f, tets, Dm_inv, volume, mu, lam, eta, fibre, 
     return total, np.sqrt(FF / 3.0)
 
 
+@njit(cache=True, inline="always")
+def _inverted(x, tets, t):
+    """1 when tet ``t`` has a non-positive (or NaN) volume ``det(x1 - x0, x2 - x0, x3 - x0)``, else 0."""
+    i0 = tets[t, 0]
+    ax, ay, az = x[tets[t, 1], 0] - x[i0, 0], x[tets[t, 1], 1] - x[i0, 1], x[tets[t, 1], 2] - x[i0, 2]
+    bx, by, bz = x[tets[t, 2], 0] - x[i0, 0], x[tets[t, 2], 1] - x[i0, 1], x[tets[t, 2], 2] - x[i0, 2]
+    cx, cy, cz = x[tets[t, 3], 0] - x[i0, 0], x[tets[t, 3], 1] - x[i0, 1], x[tets[t, 3], 2] - x[i0, 2]
+    return 0 if ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx) > 0.0 else 1
+
+
 @njit(cache=True, parallel=True)
 def count_inverted_parallel(x, tets):
     """:func:`count_inverted` on all threads (an integer count: the same for any number of threads)."""
     n = 0
     for t in prange(tets.shape[0]):
-        i0 = tets[t, 0]
-        ax, ay, az = x[tets[t, 1], 0] - x[i0, 0], x[tets[t, 1], 1] - x[i0, 1], x[tets[t, 1], 2] - x[i0, 2]
-        bx, by, bz = x[tets[t, 2], 0] - x[i0, 0], x[tets[t, 2], 1] - x[i0, 1], x[tets[t, 2], 2] - x[i0, 2]
-        cx, cy, cz = x[tets[t, 3], 0] - x[i0, 0], x[tets[t, 3], 1] - x[i0, 1], x[tets[t, 3], 2] - x[i0, 2]
-        if not ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx) > 0.0:
-            n += 1
+        n += _inverted(x, tets, t)
     return n
 
 
@@ -413,12 +418,7 @@ def count_inverted(x, tets):
     positively oriented, so this is ``J <= 0``)."""
     n = 0
     for t in range(tets.shape[0]):
-        i0 = tets[t, 0]
-        ax, ay, az = x[tets[t, 1], 0] - x[i0, 0], x[tets[t, 1], 1] - x[i0, 1], x[tets[t, 1], 2] - x[i0, 2]
-        bx, by, bz = x[tets[t, 2], 0] - x[i0, 0], x[tets[t, 2], 1] - x[i0, 1], x[tets[t, 2], 2] - x[i0, 2]
-        cx, cy, cz = x[tets[t, 3], 0] - x[i0, 0], x[tets[t, 3], 1] - x[i0, 1], x[tets[t, 3], 2] - x[i0, 2]
-        if not ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx) > 0.0:
-            n += 1
+        n += _inverted(x, tets, t)
     return n
 
 
