@@ -191,3 +191,17 @@ def test_organ_stages_frame_the_organ(tmp_path, shape):
     assert 0.25 < covered < 0.9, covered  # in view, not cut off by the frame
     lum = np.array(report["cells"][0]["mean_linear_rgb"]) @ lookdev.LUMA
     assert 0.02 < lum < 0.5, lum  # exposed like the sphere: neither black nor blown out
+
+
+def test_object_pixels_with_supersampling_are_the_wholly_covered_ones(tmp_path):
+    """With 2x2 supersampling a pixel counts when all four samples show the object: the count is at most the
+    1x1 count plus the silhouette, and at least it minus the silhouette."""
+    text = (ROOT / "scenes" / "kidney_static.toml").read_text()
+    counts = {}
+    for ss in (1, 2):
+        path = tmp_path / f"ss{ss}.toml"
+        path.write_text(text.replace("[output]", f"[output]\nsupersampling = {ss}"))
+        cells, *_ = lookdev.make_cells(["kidney"], ["roughness=0.2"], [])
+        _, stats = lookdev.render_cells(cells, scene_path=str(path), resolution=(96, 72), samples=4)
+        counts[ss] = stats[0]["object_pixels"]
+    assert 0.8 * counts[1] < counts[2] <= counts[1] + 5 and counts[1] > 200, counts

@@ -256,7 +256,10 @@ def render_cells(cells: list[Cell], shape: str = "sphere", scene_path: str | Non
 def _object_mask(result, scene, idx: list[int]) -> np.ndarray:
     """Pixels wholly covered by the objects ``idx`` of the scene (all supersamples on them)."""
     h, w = result.hdr.shape[:2]
-    index = result.gbuffer["object_index"]
+    # the shading points are the covered (super)samples in row-major order, as the raster lists them
+    depth, material = result.gbuffer["depth"], result.gbuffer["material_id"]
+    index = np.full(depth.shape, -1, np.int64)
+    index[np.isfinite(depth)] = material
     # render objects: bodies first, then static surfaces, then tools (tissuerender.pipeline.render_objects)
     order = [i for i, o in enumerate(scene.objects) if o.kind == "body"]
     order += [i for i, o in enumerate(scene.objects) if o.kind == "surface"]

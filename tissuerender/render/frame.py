@@ -587,9 +587,6 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
                                                  np.array([o.roughness for o in optics], float),
                                                  np.array([o.f0 for o in optics], float))
         gbuffer.update(depth=depth, position=pos, normal=n, material_id=mat, albedo=albedo, roughness=alpha)
-        object_index = np.full((H, W), -1, np.int16)  # which of ``objects`` each (super)sample shows; -1: none
-        object_index[jj, ii] = mat
-        gbuffer["object_index"] = object_index
         rough_factor = None
         if settings.motion or any(o.layers is not None and o.layers.texture_seed is not None for o in optics):
             corner, b = T[tri], bary[jj, ii]
