@@ -234,3 +234,44 @@ def test_dof_source_reused_between_frames_keeps_each_frame_exact():
         ref = postfx.apply_effect("depth_of_field", hdr, depth, p, lens)
         gpu = osmesa.apply_effect("depth_of_field", hdr, depth, p, lens)
         assert np.abs(ref - gpu).max() <= 1e-5 * np.abs(ref).max()
+
+
+@needs_osmesa
+@pytest.mark.osmesa
+def test_dof_stores_reach_the_next_pass_without_a_barrier_on_llvmpipe():
+    """On llvmpipe the gather's imageStore results are read by the next pass without glMemoryBarrier
+    (a full finish there): the same bits as with it, chained into effects that read neighbours."""
+    hdr, depth = _inputs()
+    chain = [("depth_of_field", CASES["depth_of_field"]), ("chromatic_aberration", CASES["chromatic_aberration"]),
+             ("blur", CASES["blur"]), ("tonemap", Tonemap())]
+    ctx = osmesa.Context.get()
+    if "llvmpipe" not in ctx.renderer:
+        pytest.skip(f"renderer {ctx.renderer!r}: the barrier is kept")
+    assert not ctx.barrier_after_stores
+    try:
+        ctx.barrier_after_stores = True
+        with_barrier, _, _ = osmesa.run_chain(hdr, depth, chain, LENS, seed=2)
+    finally:
+        ctx.barrier_after_stores = False
+    without, _, _ = osmesa.run_chain(hdr, depth, chain, LENS, seed=2)
+    assert np.array_equal(with_barrier, without)
+    ref = postfx.apply_chain(hdr, depth, chain, LENS, backend="numpy", seed=2).image
+    assert np.abs(np.clip(without, 0.0, 1.0) - ref).max() < 1e-3
+
+
+@needs_osmesa
+@pytest.mark.osmesa
+def test_effect_seconds_come_from_gl_timestamps_and_add_up_to_the_chain():
+    """The passes are queued without a wait per effect; each effect's seconds are the GL timestamp
+    differences, so they are positive, and with the read-back they make up the chain's total (the
+    first effect measured from the chain's start when llvmpipe's clock is the monotonic one)."""
+    hdr, depth = _inputs()
+    chain = [(n, CASES[n]) for n in postfx.DEFAULT_ORDER]
+    osmesa.run_chain(hdr, depth, chain, LENS)  # compiles
+    _, seconds, total = osmesa.run_chain(hdr, depth, chain, LENS)
+    assert list(seconds) == ["depth_of_field", "chromatic_aberration", "lens_flare", "bloom",
+                             "blur+sensor_noise+tonemap+color_grade", "sharpen+laparoscope_mask"]
+    assert all(v > 0.0 for v in seconds.values())
+    assert sum(seconds.values()) <= total
+    if osmesa.Context.get().shared_clock:
+        assert sum(seconds.values()) >= 0.5 * total  # the read-back is the only part outside the effects
