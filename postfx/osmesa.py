@@ -33,6 +33,7 @@ GL_PIXEL_UNPACK_BUFFER = 0x88EC
 GL_UNPACK_ALIGNMENT = 0x0CF5
 GL_TEXTURE_2D = 0x0DE1
 GL_PACK_ALIGNMENT = 0x0D05
+GL_PACK_ROW_LENGTH = 0x0D02
 GL_RGBA32F = 0x8814
 GL_WRITE_ONLY = 0x88B9
 GL_ALL_BARRIER_BITS = 0xFFFFFFFF
@@ -168,6 +169,7 @@ class Context:
         self.persistent: dict = {}
         self.free: dict[tuple[int, int], list] = {}
         self.pooled: dict[int, int] = {}  # id -> layers of the targets this context allocated
+        self.row_blocked: dict[int, int] = {}  # id -> image height of a target drawn row-blocked, until read back
         # when a dict: every draw waits for the passes before it, and for itself, and adds its seconds
         # under "<pass>[+epilogue] <width>x<height>" (a profile for the benchmark; off by default)
         self.profile: dict | None = None
@@ -266,6 +268,8 @@ class Context:
     def release(self, *textures):
         """Give drawn targets back to the pool."""
         for tex in textures:
+            if tex is not None:
+                self.row_blocked.pop(id(tex), None)
             if tex is not None and id(tex) in self.pooled:
                 self.free.setdefault((tex.GetWidth(), tex.GetHeight(), self.pooled[id(tex)]), []).append(tex)
 
@@ -287,6 +291,7 @@ class Context:
 
             self.quads[fs] = vtkOpenGLQuadHelper(self.window, self.vertex_shader, fs, "")
         target = self.target(width, height, border, layers)
+        self.row_blocked.pop(id(target), None)
         fbo = self.fbo
         fbo.SaveCurrentBindingsAndBuffers()
         try:
@@ -334,19 +339,32 @@ class Context:
 
     def download(self, tex) -> np.ndarray:
         """Read a target back as a (H, W, 3) float32 array: glReadPixels of the RGB channels straight into
-        the array (0.65 ms at 640x480; 2.7 ms through VTK's pixel buffer as RGBA, then a strided copy)."""
+        the array (0.65 ms at 640x480; 2.7 ms through VTK's pixel buffer as RGBA, then a strided copy). A
+        row-blocked target (``row_blocked``: layer k holds rows k, k + L, ...) is read layer by layer, each
+        row landing in its place (GL_PACK_ROW_LENGTH of L rows)."""
         t0 = time.perf_counter()
-        width, height = tex.GetWidth(), tex.GetHeight()
+        width = tex.GetWidth()
+        height = self.row_blocked.pop(id(tex), None)
+        layers = tex.GetDepth() if height is not None else 1
+        if height is None:
+            height = tex.GetHeight()
         out = np.empty((height, width, 3), np.float32)
         fbo = self.fbo
         fbo.SaveCurrentBindingsAndBuffers()
         try:
             fbo.Bind()
-            fbo.AddColorAttachment(0, tex)
-            fbo.ActivateReadBuffer(0)
             self.gl.glBindBuffer(GL_PIXEL_PACK_BUFFER, 0)  # into client memory, not a pixel buffer
             self.gl.glPixelStorei(GL_PACK_ALIGNMENT, 4)  # rows of 12 W bytes, no padding
-            self.gl.glReadPixels(0, 0, width, height, GL_RGB, GL_FLOAT, out.ctypes.data)
+            self.gl.glPixelStorei(GL_PACK_ROW_LENGTH, width * layers)
+            for layer in range(min(layers, height)):
+                fbo.RemoveColorAttachment(0)  # VTK keeps an attachment of the same texture, whatever its layer
+                fbo.AddColorAttachment(0, tex, layer)
+                fbo.ActivateReadBuffer(0)
+                rows = (height - layer + layers - 1) // layers
+                self.gl.glReadPixels(0, 0, width, rows, GL_RGB, GL_FLOAT, out[layer].ctypes.data)
+            self.gl.glPixelStorei(GL_PACK_ROW_LENGTH, 0)
+            if layers > 1:  # a later draw into this target's layer 0 must attach it again
+                fbo.RemoveColorAttachment(0)
         finally:
             fbo.RestorePreviousBindingsAndBuffers()
         self.note(f"read-back {width}x{height}", t0)
@@ -374,27 +392,49 @@ class Context:
         return out
 
 
-def _gaussian(ctx, tex, sigma, orig=None, amount=0.0, epilogue=None):
+def _gaussian(ctx, tex, sigma, orig=None, amount=0.0, epilogue=None, rows_out=False):
     """Separable Gaussian (effects.gaussian_blur) in blocks of GAUSS_BLOCK outputs per fragment; with
     ``orig``, the unsharp mask's ``orig + amount (orig - blur)`` clipped. ``epilogue``: pointwise effects
-    fused into the last pass (``_Epilogue``)."""
+    fused into the last pass (``_Epilogue``).
+
+    Row-blocked images (``Context.row_blocked``: a 3D target whose layer k holds the rows k, k + L, ...):
+    with ``rows_out`` a radius up to GAUSS_PLAIN_V writes its result so, GAUSS_BLOCK rows per fragment
+    from GAUSS_BLOCK + 2R fetches instead of 2R + 1 per row (``shaders._gauss_rows_out``; the caller asks
+    for it when the result goes to the read-back or to another such Gaussian); ``tex`` (and ``orig``)
+    may be row-blocked, and are read in place."""
     from postfx import effects
 
-    w, h = tex.GetWidth(), tex.GetHeight()
+    w = tex.GetWidth()
+    h = ctx.row_blocked.get(id(tex), tex.GetHeight())
     weights = effects.gaussian_weights(sigma)
     if weights.size > MAX_TAPS:
         raise ValueError(f"sigma_px = {sigma} needs {weights.size} taps, the shader holds {MAX_TAPS}")
-    horizontal, vertical = shaders.gauss_passes((weights.size - 1) // 2)
+    R = (weights.size - 1) // 2
+    horizontal, vertical = shaders.gauss_passes(R)
     wts = FloatArray(weights)
     bx, by = -(-w // GAUSS_BLOCK), -(-h // GAUSS_BLOCK)
-    rows = ctx.draw(horizontal, {"img": tex}, {"wts": wts, "blocks": IVec2((bx, h))}, bx, h, layers=GAUSS_BLOCK)
+    rows = ctx.draw(horizontal + ("r" if id(tex) in ctx.row_blocked else ""), {"img": tex},
+                    {"wts": wts, "blocks": IVec2((bx, h))}, bx, h, layers=GAUSS_BLOCK)
     ep = epilogue or _Epilogue.none()
+    # the unsharp mask's variant: "u" for an image, "U" for a row-blocked one
+    unsharp = "" if orig is None else ("U" if id(orig) in ctx.row_blocked else "u")
+    if rows_out and R <= shaders.GAUSS_PLAIN_V:
+        inputs = {"rows": rows, **({} if orig is None else {"orig": orig}), **ep.inputs}
+        uniforms = {"wts": wts, "size": IVec2((w, h)), "blocks": IVec2((w, by)), **ep.uniforms}
+        if orig is not None:
+            uniforms["amount"] = float(amount)
+        out = ctx.draw(f"gauss_vb{R}{unsharp}", inputs, uniforms, w, by, epilogue=ep.names, layers=GAUSS_BLOCK)
+        ctx.row_blocked[id(out)] = h
+        ctx.release(rows)
+        return out
+    if unsharp == "U" and R > shaders.GAUSS_PLAIN_V:
+        raise ValueError("a row-blocked image goes only to Gaussians of radius <= GAUSS_PLAIN_V")
     if (weights.size - 1) // 2 <= shaders.GAUSS_PLAIN_V:  # one output per fragment, straight into the image
         inputs = {"rows": rows, **({} if orig is None else {"orig": orig}), **ep.inputs}
         uniforms = {"wts": wts, "size": IVec2((w, h)), **ep.uniforms}
         if orig is not None:
             uniforms["amount"] = float(amount)
-        out = ctx.draw(vertical + ("u" if orig is not None else ""), inputs, uniforms, w, h, epilogue=ep.names)
+        out = ctx.draw(vertical + unsharp, inputs, uniforms, w, h, epilogue=ep.names)
         ctx.release(rows)
         return out
     cols = ctx.draw(vertical, {"rows": rows}, {"wts": wts, "blocks": IVec2((w, by))}, w, by, layers=GAUSS_BLOCK)
@@ -613,10 +653,14 @@ def _depth_of_field(ctx, tex, depth, params, lens, ep, host=None):
 
 
 def effect_on_gpu(ctx: Context, name: str, tex, depth: np.ndarray, params, lens, seed: int = 0, epilogue=(),
-                  host=None):
+                  host=None, rows_out=False):
     """One effect from texture to texture (the input stays valid; the caller releases it), followed by
     the pointwise effects ``epilogue`` (a list of ``(name, params)``) drawn in its last pass. ``tex`` may
-    be None for the depth of field, which then reads the frame ``host`` from the CPU."""
+    be None for the depth of field, which then reads the frame ``host`` from the CPU. ``rows_out``: a
+    blur or sharpen may leave its result row-blocked (``_gaussian``); only ``takes_rows`` effects and
+    ``Context.download`` read such a texture."""
+    if tex is not None and id(tex) in ctx.row_blocked and not takes_rows(name, params):
+        raise ValueError(f"{name} cannot read a row-blocked image")
     from postfx import lens_flare
 
     if name == "depth_of_field":
@@ -628,9 +672,9 @@ def effect_on_gpu(ctx: Context, name: str, tex, depth: np.ndarray, params, lens,
         return ctx.draw("pointwise", {"img": tex, **ep.inputs}, ep.uniforms, w, h, epilogue=ep.names)
     ep = _Epilogue(ctx, epilogue, w, h, seed)
     if name == "blur":
-        return _gaussian(ctx, tex, params.sigma_px, epilogue=ep)
+        return _gaussian(ctx, tex, params.sigma_px, epilogue=ep, rows_out=rows_out)
     if name == "sharpen":
-        return _gaussian(ctx, tex, params.sigma_px, orig=tex, amount=params.amount, epilogue=ep)
+        return _gaussian(ctx, tex, params.sigma_px, orig=tex, amount=params.amount, epilogue=ep, rows_out=rows_out)
     if name == "bloom":
         half = _half(ctx, tex, params.threshold)
         low = _gaussian(ctx, half, 0.5 * params.sigma_px)
@@ -660,6 +704,14 @@ def effect_on_gpu(ctx: Context, name: str, tex, depth: np.ndarray, params, lens,
                         {"scale": scale, "centre": (params.centre[0] * w, params.centre[1] * h), **ep.uniforms},
                         w, h, epilogue=ep.names, linear={"img": False})
     raise KeyError(f"unknown post-effect {name!r}")
+
+
+def takes_rows(name: str, params) -> bool:
+    """Whether the effect ``name`` reads a row-blocked image in place (a blur or sharpen whose radius is at
+    most GAUSS_PLAIN_V; the unsharp mask's own fetch of it too)."""
+    from postfx import effects
+
+    return name in ("blur", "sharpen") and (effects.gaussian_weights(params.sigma_px).size - 1) // 2 <= shaders.GAUSS_PLAIN_V
 
 
 def fused_groups(chain, fuse: bool = True):
@@ -697,7 +749,9 @@ def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fu
     keys = []
     for i, group in enumerate(groups):
         (name, params), rest = group[0], group[1:]
-        out = effect_on_gpu(ctx, name, tex, depth, params, lens, seed, epilogue=rest, host=hdr)
+        # row-blocked output for the read-back or for the next Gaussian (its passes read it in place)
+        rows_out = i == len(groups) - 1 or takes_rows(*groups[i + 1][0])
+        out = effect_on_gpu(ctx, name, tex, depth, params, lens, seed, epilogue=rest, host=hdr, rows_out=rows_out)
         ctx.timestamp(i)
         keys.append("+".join(n for n, _ in group))
         if tex is not uploaded:

@@ -148,6 +148,39 @@ def _gauss_writes() -> str:
 GAUSS_PLAIN_V = 3
 
 
+def _gauss_rows_out(R: int) -> None:
+    """``gauss_vb<R>`` (and ``gauss_vb<R>u``, the unsharp mask): the vertical pass of a Gaussian of radius
+    R <= GAUSS_PLAIN_V for the chain's last pass, GAUSS_BLOCK rows per fragment from GAUSS_BLOCK + 2R
+    fetches (instead of 2R + 1 per row), written into the layers of a 3D target, layer = row mod
+    GAUSS_BLOCK, which ``Context.download`` reads back row by row into place. The same sums, in the
+    same order, as ``gauss_vp<R>``; the pointwise epilogue runs on each row's value."""
+    unsharp = "".join(f"  x = texture(orig, vec2(ox, (float(y0 + {b}) + 0.5) * oy)).rgb;\n"
+                      f"  a{b} = clamp(x + amount * (x - a{b}), 0.0, 1.0);\n" for b in range(GAUSS_BLOCK))
+    # orig row-blocked too (the Gaussian before wrote it): output b of this block is its texel (x, block, b)
+    unsharp_rows = "".join(f"  x = texture(orig, vec3(ox, (float(b.y) + 0.5) * oy, {(b + 0.5) / GAUSS_BLOCK})).rgb;\n"
+                           f"  a{b} = clamp(x + amount * (x - a{b}), 0.0, 1.0);\n" for b in range(GAUSS_BLOCK))
+    writes = "".join(f"  gl_FragData[{b}] = vec4(post(a{b}, ivec2(b.x, y0 + {b}), size), 1.0);\n"
+                     for b in range(GAUSS_BLOCK))
+    for name, orig, code in ((f"gauss_vb{R}", "", ""),
+                             (f"gauss_vb{R}u", "uniform sampler2D orig;\nuniform float amount;\n", unsharp),
+                             (f"gauss_vb{R}U", "uniform sampler3D orig;\nuniform float amount;\n", unsharp_rows)):
+        oy = "textureSize(orig, 0).y" if name.endswith("U") else "size.y"
+        SHADERS[name] = _HEADER + orig + f"""uniform sampler3D rows;
+uniform float wts[{2 * R + 1}];
+uniform ivec2 size;
+uniform ivec2 blocks;
+//EPILOGUE::Dec
+void main() {{
+  ivec2 b = ivec2(texCoord * vec2(blocks));
+  vec3 rs = vec3(textureSize(rows, 0));
+  float u = (float(b.x / {GAUSS_BLOCK}) + 0.5) / rs.x;
+  float layer = (float(b.x % {GAUSS_BLOCK}) + 0.5) / rs.z;
+  int y0 = b.y * {GAUSS_BLOCK};
+#define tap(d) texture(rows, vec3(u, (float(y0 + d) + 0.5) / rs.y, layer)).rgb
+{_gauss_taps("tap", R)}""" + (f"  vec3 x;\n  float ox = (float(b.x) + 0.5) / float(size.x), oy = 1.0 / float({oy});\n"
+                               + code if orig else "") + writes + "}\n"
+
+
 @functools.lru_cache(maxsize=None)
 def gauss_passes(R: int) -> tuple[str, str]:
     """The two passes of a Gaussian of radius R (2R + 1 taps, edges clamped by the clamp-to-edge wrap):
@@ -167,9 +200,26 @@ void main() {{
 #define tap(d) texture(img, vec2((float(x0 + d) + 0.5) * inv.x, v)).rgb
 {_gauss_taps("tap", R)}{_gauss_writes()}}}
 """
+    # the same from a row-blocked image (layer = row mod GAUSS_BLOCK: a Gaussian's blocked vertical pass)
+    SHADERS[horizontal + "r"] = _HEADER + f"""uniform sampler3D img;
+uniform float wts[{2 * R + 1}];
+uniform ivec2 blocks;
+void main() {{
+  vec3 is = vec3(textureSize(img, 0));
+  ivec2 b = ivec2(texCoord * vec2(blocks));
+  int x0 = b.x * {GAUSS_BLOCK};
+  float v = (float(b.y / {GAUSS_BLOCK}) + 0.5) / is.y, layer = (float(b.y % {GAUSS_BLOCK}) + 0.5) / is.z;
+#define tap(d) texture(img, vec3((float(x0 + d) + 0.5) / is.x, v, layer)).rgb
+{_gauss_taps("tap", R)}{_gauss_writes()}}}
+"""
     if R <= GAUSS_PLAIN_V:
-        unsharp = "  vec3 x = texture(orig, texCoord).rgb;\n  a0 = clamp(x + amount * (x - a0), 0.0, 1.0);\n"
-        for name, orig in ((vertical, ""), (vertical + "u", "uniform sampler2D orig;\nuniform float amount;\n")):
+        unsharp = "  vec3 x = texture(orig, texCoord).rgb;\n"
+        unsharp_rows = ("  vec3 x = texture(orig, vec3(texCoord.x, (float(p.y / {B}) + 0.5) / float(textureSize(orig, 0).y), "
+                        "(float(p.y % {B}) + 0.5) / {B}.0)).rgb;\n").format(B=GAUSS_BLOCK)
+        mask = "  a0 = clamp(x + amount * (x - a0), 0.0, 1.0);\n"
+        for name, orig, code in ((vertical, "", ""),
+                                 (vertical + "u", "uniform sampler2D orig;\nuniform float amount;\n", unsharp + mask),
+                                 (vertical + "U", "uniform sampler3D orig;\nuniform float amount;\n", unsharp_rows + mask)):
             SHADERS[name] = _HEADER + orig + f"""uniform sampler3D rows;
 uniform float wts[{2 * R + 1}];
 uniform ivec2 size;
@@ -180,9 +230,10 @@ void main() {{
   float u = (float(p.x / {GAUSS_BLOCK}) + 0.5) / rs.x;
   float layer = (float(p.x % {GAUSS_BLOCK}) + 0.5) / rs.z;
 #define tap(d) texture(rows, vec3(u, (float(p.y + d) + 0.5) / rs.y, layer)).rgb
-{_gauss_taps("tap", R, 1)}{unsharp if orig else ""}  gl_FragData[0] = vec4(post(a0, p, size), 1.0);
+{_gauss_taps("tap", R, 1)}{code}  gl_FragData[0] = vec4(post(a0, p, size), 1.0);
 }}
 """
+        _gauss_rows_out(R)
         return horizontal, vertical
     SHADERS[vertical] = _HEADER + f"""uniform sampler3D rows;
 uniform float wts[{2 * R + 1}];
