@@ -14,6 +14,7 @@ is applied in the last pass of the effect before it.
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import math
 import time
@@ -738,28 +739,32 @@ def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fu
     after each effect, 34.9 ms without, same process, alternating). An effect's seconds come from GL
     timestamps: from the end of the effect before it (for the first, from the chain's start on the CPU
     when llvmpipe's clock is the monotonic one) to the end of its own last pass."""
+    from postfx import keep_awake
+
     ctx = Context.get()
+    awake = keep_awake.KeepAwake.get() if keep_awake.enabled() else contextlib.nullcontext()
     start, start_ns = time.perf_counter(), time.monotonic_ns()
-    groups = fused_groups(chain, fuse)
-    # a depth of field first builds its source from the frame on the CPU: no upload of the frame itself
-    tex = None if groups and groups[0][0][0] == "depth_of_field" else ctx.upload_into("frame", hdr)
-    uploaded = tex
-    if not ctx.shared_clock:
-        ctx.timestamp(len(groups))
-    keys = []
-    for i, group in enumerate(groups):
-        (name, params), rest = group[0], group[1:]
-        # row-blocked output for the read-back or for the next Gaussian (its passes read it in place)
-        rows_out = i == len(groups) - 1 or takes_rows(*groups[i + 1][0])
-        out = effect_on_gpu(ctx, name, tex, depth, params, lens, seed, epilogue=rest, host=hdr, rows_out=rows_out)
-        ctx.timestamp(i)
-        keys.append("+".join(n for n, _ in group))
+    with awake:  # idle-priority threads keep the CPUs from halting while llvmpipe's threads sleep and wake
+        groups = fused_groups(chain, fuse)
+        # a depth of field first builds its source from the frame on the CPU: no upload of the frame itself
+        tex = None if groups and groups[0][0][0] == "depth_of_field" else ctx.upload_into("frame", hdr)
+        uploaded = tex
+        if not ctx.shared_clock:
+            ctx.timestamp(len(groups))
+        keys = []
+        for i, group in enumerate(groups):
+            (name, params), rest = group[0], group[1:]
+            # row-blocked output for the read-back or for the next Gaussian (its passes read it in place)
+            rows_out = i == len(groups) - 1 or takes_rows(*groups[i + 1][0])
+            out = effect_on_gpu(ctx, name, tex, depth, params, lens, seed, epilogue=rest, host=hdr, rows_out=rows_out)
+            ctx.timestamp(i)
+            keys.append("+".join(n for n, _ in group))
+            if tex is not uploaded:
+                ctx.release(tex)
+            tex = out
+        image = ctx.download(tex)
         if tex is not uploaded:
             ctx.release(tex)
-        tex = out
-    image = ctx.download(tex)
-    if tex is not uploaded:
-        ctx.release(tex)
     stamps = ctx.timestamps(len(groups) + (not ctx.shared_clock))
     previous = start_ns if ctx.shared_clock else stamps[-1]
     seconds = {}

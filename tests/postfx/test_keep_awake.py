@@ -1,0 +1,69 @@
+"""The idle-priority threads that keep the CPUs awake during an OSMesa chain."""
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import pytest
+
+import postfx
+from postfx import keep_awake, osmesa
+from postfx.params import Blur, ChromaticAberration, Tonemap
+
+needs_osmesa = pytest.mark.skipif(not osmesa.library_available(),
+                                  reason="libOSMesa missing: install the Debian package libosmesa6")
+
+
+def wait_until(condition, seconds=5.0):
+    """Poll ``condition``: under a loaded test run idle-priority threads start and stop late."""
+    deadline = time.monotonic() + seconds
+    while not condition() and time.monotonic() < deadline:
+        time.sleep(0.001)
+    return condition()
+
+
+def _thread_cpu_seconds(native_id: int) -> float:
+    with open(f"/proc/self/task/{native_id}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE") or not os.path.isdir("/proc/self/task"), reason="Linux only")
+def test_threads_run_at_idle_priority_and_spin_only_inside_the_block():
+    awake = keep_awake.KeepAwake.get()
+    assert awake.active and len(awake.native_ids) == len(awake.threads) >= 1
+    assert all(os.sched_getscheduler(t) == os.SCHED_IDLE for t in awake.native_ids)
+    before = awake.turns
+
+    with awake:
+        assert wait_until(lambda: awake.spinning == len(awake.threads))
+        time.sleep(0.1)
+    assert wait_until(lambda: awake.spinning == 0)  # all of them stop after the block
+    assert awake.turns > before
+    after = awake.turns
+    cpu1 = sum(_thread_cpu_seconds(t) for t in awake.native_ids)
+    time.sleep(0.3)
+    cpu2 = sum(_thread_cpu_seconds(t) for t in awake.native_ids)
+    assert awake.turns == after  # no turn outside the block
+    assert cpu2 - cpu1 <= 0.02  # waiting on the condition, not spinning
+
+
+@needs_osmesa
+@pytest.mark.osmesa
+def test_chain_spins_unless_switched_off_and_gives_the_same_pixels(monkeypatch):
+    rng = np.random.default_rng(3)
+    img = (rng.random((48, 64, 3)) * 3.0).astype(np.float32)
+    lens = postfx.Lens(70.0, 64, 48)
+    chain = [("chromatic_aberration", ChromaticAberration(strength_r=0.01)), ("blur", Blur(sigma_px=1.0)),
+             ("tonemap", Tonemap())]
+    awake = keep_awake.KeepAwake.get()
+    before = awake.turns
+    on = postfx.apply_chain(img, None, chain, lens, backend="osmesa", seed=4).image
+    assert wait_until(lambda: awake.spinning == 0) and awake.turns > before
+    monkeypatch.setenv(keep_awake.ENV, "0")
+    assert not keep_awake.enabled()
+    before = awake.turns
+    off = postfx.apply_chain(img, None, chain, lens, backend="osmesa", seed=4).image
+    assert awake.turns == before
+    assert np.array_equal(on, off)
