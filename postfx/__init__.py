@@ -103,14 +103,14 @@ def apply_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens: Lens, backend: 
         from postfx import osmesa
 
         osmesa.Context.get()  # raises OSMesaUnavailable naming libosmesa6 when it cannot run
-        img, groups, total = osmesa.run_chain(img, depth, chain, lens, seed)  # one upload, one read-back
+        img, groups, total = osmesa.run_chain(img, depth, chain, lens, seed, clip=True)  # one upload, one read-back
         seconds, fused = {}, {}
         for key, value in groups.items():
             first, *rest = key.split("+")
             seconds[first] = value
             if rest:
                 fused[first] = rest
-        return ChainResult(np.clip(img, 0.0, 1.0), seconds, used, total, fused)
+        return ChainResult(img, seconds, used, total, fused)
     seconds, fused = {}, {}
     begin = time.perf_counter()
     for run in _pointwise_runs(chain):

@@ -75,6 +75,18 @@ class IVec2(tuple):
     """A ``uniform ivec2`` value."""
 
 
+def _canonical(value):
+    """A value of ``_set_uniform`` in a form that compares equal exactly when the program would receive
+    the same values (uniform names keep one type)."""
+    if isinstance(value, tuple):  # FloatArray, Vec4Array, IVec2, pairs
+        return value
+    if isinstance(value, list):
+        return tuple(value)
+    if isinstance(value, np.ndarray):
+        return value.tobytes()
+    return value
+
+
 def _set_uniform(program, key, value):
     if isinstance(value, FloatArray):
         program.SetUniform1fv(key, len(value), [float(v) for v in value])
@@ -90,6 +102,23 @@ def _set_uniform(program, key, value):
         program.SetUniform2f(key, [float(v) for v in value])
     else:
         program.SetUniform3f(key, [float(v) for v in value])
+
+
+@njit(cache=True)
+def _rgb_of(rgba, clip, out):
+    """``out = rgba[..., :3]``, clipped to [0, 1] with ``clip`` as np.clip does (NaN stays NaN)."""
+    h, w, _ = rgba.shape
+    zero, one = np.float32(0.0), np.float32(1.0)
+    for j in range(h):
+        for i in range(w):
+            for c in range(3):
+                v = rgba[j, i, c]
+                if clip:
+                    if v < zero:
+                        v = zero
+                    elif v > one:
+                        v = one
+                out[j, i, c] = v
 
 
 class Context:
@@ -170,6 +199,7 @@ class Context:
         self.persistent: dict = {}
         self.free: dict[tuple[int, int], list] = {}
         self.pooled: dict[int, int] = {}  # id -> layers of the targets this context allocated
+        self.uniform_values: dict[str, dict] = {}  # shader source -> uniform -> what its program holds
         self.row_blocked: dict[int, int] = {}  # id -> image height of a target drawn row-blocked, until read back
         # when a dict: every draw waits for the passes before it, and for itself, and adds its seconds
         # under "<pass>[+epilogue] <width>x<height>" (a profile for the benchmark; off by default)
@@ -308,14 +338,25 @@ class Context:
             program = self.window.GetShaderCache().ReadyShaderProgram(self.vertex_shader, fs, "")
             for key, zero in (linear or {}).items():
                 self._linear(inputs[key], zero)
+            # a program keeps its uniforms: set only those that changed since its last draw (about 56 per
+            # chain, 18 us each through VTK's wrapping, most of them the same every frame)
+            known = self.uniform_values.setdefault(fs, {})
             for key, tex in inputs.items():
                 tex.Activate()
-                program.SetUniformi(key, tex.GetTextureUnit())
+                unit = tex.GetTextureUnit()
+                if known.get(key) != unit:
+                    program.SetUniformi(key, unit)
+                    known[key] = unit
             for key, value in uniforms.items():
-                _set_uniform(program, key, value)
+                canonical = _canonical(value)
+                if known.get(key) != canonical:
+                    _set_uniform(program, key, value)
+                    known[key] = canonical
             for unit, (key, tex) in enumerate((images or {}).items()):
                 self.gl.glBindImageTexture(unit, tex.GetHandle(), 0, 0, 0, GL_WRITE_ONLY, GL_RGBA32F)
-                program.SetUniformi(key, unit)
+                if known.get(key) != unit:
+                    program.SetUniformi(key, unit)
+                    known[key] = unit
             self.quads[fs].Render()
             if images and self.barrier_after_stores:
                 self.gl.glMemoryBarrier(GL_ALL_BARRIER_BITS)
@@ -338,36 +379,41 @@ class Context:
         if self.profile is not None:
             self.profile[key] = self.profile.get(key, 0.0) + time.perf_counter() - t0
 
-    def download(self, tex) -> np.ndarray:
-        """Read a target back as a (H, W, 3) float32 array: glReadPixels of the RGB channels straight into
-        the array (0.65 ms at 640x480; 2.7 ms through VTK's pixel buffer as RGBA, then a strided copy). A
-        row-blocked target (``row_blocked``: layer k holds rows k, k + L, ...) is read layer by layer, each
-        row landing in its place (GL_PACK_ROW_LENGTH of L rows)."""
+    def download(self, tex, clip: bool = False) -> np.ndarray:
+        """Read a target back as a new (H, W, 3) float32 array, clipped to [0, 1] with ``clip``. glReadPixels
+        of RGBA into a host array kept from call to call (RGBA32F to RGBA is a copy in Mesa, 0.29 ms at
+        640x480, where RGB converts, 0.48 ms, and a new array faults its pages in on every call, about 1
+        ms), then the RGB channels into the result in one loop (0.3 ms; NumPy's clip of the strided view
+        took 1.6 ms). A row-blocked target
+        (``row_blocked``: layer k holds rows k, k + L, ...) is read layer by layer, each row landing in its
+        place (GL_PACK_ROW_LENGTH of L rows)."""
         t0 = time.perf_counter()
         width = tex.GetWidth()
         height = self.row_blocked.pop(id(tex), None)
         layers = tex.GetDepth() if height is not None else 1
         if height is None:
             height = tex.GetHeight()
-        out = np.empty((height, width, 3), np.float32)
+        staged, _ = self.staging_array("read-back", (height, width, 4))
         fbo = self.fbo
         fbo.SaveCurrentBindingsAndBuffers()
         try:
             fbo.Bind()
             self.gl.glBindBuffer(GL_PIXEL_PACK_BUFFER, 0)  # into client memory, not a pixel buffer
-            self.gl.glPixelStorei(GL_PACK_ALIGNMENT, 4)  # rows of 12 W bytes, no padding
+            self.gl.glPixelStorei(GL_PACK_ALIGNMENT, 4)
             self.gl.glPixelStorei(GL_PACK_ROW_LENGTH, width * layers)
             for layer in range(min(layers, height)):
                 fbo.RemoveColorAttachment(0)  # VTK keeps an attachment of the same texture, whatever its layer
                 fbo.AddColorAttachment(0, tex, layer)
                 fbo.ActivateReadBuffer(0)
                 rows = (height - layer + layers - 1) // layers
-                self.gl.glReadPixels(0, 0, width, rows, GL_RGB, GL_FLOAT, out[layer].ctypes.data)
+                self.gl.glReadPixels(0, 0, width, rows, GL_RGBA, GL_FLOAT, staged[layer].ctypes.data)
             self.gl.glPixelStorei(GL_PACK_ROW_LENGTH, 0)
             if layers > 1:  # a later draw into this target's layer 0 must attach it again
                 fbo.RemoveColorAttachment(0)
         finally:
             fbo.RestorePreviousBindingsAndBuffers()
+        out = np.empty((height, width, 3), np.float32)
+        _rgb_of(staged, clip, out)
         self.note(f"read-back {width}x{height}", t0)
         return out
 
@@ -728,8 +774,9 @@ def fused_groups(chain, fuse: bool = True):
     return groups
 
 
-def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fuse: bool = True):
-    """The whole chain on the GL side: one upload, one read-back. Returns the image, the seconds of
+def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fuse: bool = True, clip: bool = False):
+    """The whole chain on the GL side: one upload, one read-back. Returns the image (clipped to [0, 1]
+    with ``clip``, as ``postfx.apply_chain`` returns it), the seconds of
     each group of fused effects (keyed by the effect's name, or by the names joined with "+" when
     pointwise effects were drawn in its last pass) and the total seconds including the transfers.
 
@@ -762,7 +809,7 @@ def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fu
             if tex is not uploaded:
                 ctx.release(tex)
             tex = out
-        image = ctx.download(tex)
+        image = ctx.download(tex, clip)
         if tex is not uploaded:
             ctx.release(tex)
     stamps = ctx.timestamps(len(groups) + (not ctx.shared_clock))
