@@ -171,3 +171,12 @@ class KeepAwake:
         with self.cond:  # a thread that gets no CPU to see the flag now stops when it does
             self.cond.wait_for(lambda: self.spinning == 0, timeout=0.002)
         return False
+
+
+def _forget_in_child() -> None:
+    """A forked child has none of the parent's threads: it starts its own on first use."""
+    KeepAwake._instance = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_in_child)

@@ -67,3 +67,27 @@ def test_chain_spins_unless_switched_off_and_gives_the_same_pixels(monkeypatch):
     off = postfx.apply_chain(img, None, chain, lens, backend="osmesa", seed=4).image
     assert awake.turns == before
     assert np.array_equal(on, off)
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="POSIX only")
+def test_a_forked_child_starts_its_own_threads():
+    awake = keep_awake.KeepAwake.get()
+    pid = os.fork()
+    if pid == 0:  # the child: a new instance whose threads exist and spin
+        try:
+            child = keep_awake.KeepAwake.get()
+            ok = child is not awake and child.active
+            with child:
+                ok = ok and wait_until(lambda: child.spinning == len(child.threads))
+            os._exit(0 if ok else 1)
+        except BaseException:
+            os._exit(2)
+    deadline = time.monotonic() + 30.0
+    done, status = 0, 0
+    while not done and time.monotonic() < deadline:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        time.sleep(0.01)
+    if not done:  # a child stuck on a lock some other thread held at the fork: do not hang the suite
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+    assert done and os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0
