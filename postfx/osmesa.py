@@ -784,18 +784,20 @@ def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fu
     next while this thread prepares the ones after, instead of sleeping after every effect (on this
     2-vCPU VM each such wake-up cost up to ~0.5 ms: the rendered benchmark frame 44.2 ms with a wait
     after each effect, 34.9 ms without, same process, alternating). An effect's seconds come from GL
-    timestamps: from the end of the effect before it (for the first, from the chain's start on the CPU
-    when llvmpipe's clock is the monotonic one) to the end of its own last pass."""
+    timestamps: from the end of the effect before it (for the first, from the chain's start on the CPU,
+    after the frame's upload, when llvmpipe's clock is the monotonic one; a DoF that comes first builds
+    and uploads its own source, which counts) to the end of its own last pass."""
     from postfx import keep_awake
 
     ctx = Context.get()
     awake = keep_awake.KeepAwake.get() if keep_awake.enabled() else contextlib.nullcontext()
-    start, start_ns = time.perf_counter(), time.monotonic_ns()
+    start = time.perf_counter()
     with awake:  # idle-priority threads keep the CPUs from halting while llvmpipe's threads sleep and wake
         groups = fused_groups(chain, fuse)
         # a depth of field first builds its source from the frame on the CPU: no upload of the frame itself
         tex = None if groups and groups[0][0][0] == "depth_of_field" else ctx.upload_into("frame", hdr)
         uploaded = tex
+        effects_ns = time.monotonic_ns()  # the first effect's time starts after the frame's upload
         if not ctx.shared_clock:
             ctx.timestamp(len(groups))
         keys = []
@@ -813,7 +815,7 @@ def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fu
         if tex is not uploaded:
             ctx.release(tex)
     stamps = ctx.timestamps(len(groups) + (not ctx.shared_clock))
-    previous = start_ns if ctx.shared_clock else stamps[-1]
+    previous = effects_ns if ctx.shared_clock else stamps[-1]
     seconds = {}
     for key, stamp in zip(keys, stamps):
         seconds[key] = max(stamp - previous, 0) * 1e-9
