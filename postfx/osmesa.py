@@ -199,6 +199,7 @@ class Context:
         self.persistent: dict = {}
         self.free: dict[tuple[int, int], list] = {}
         self.pooled: dict[int, int] = {}  # id -> layers of the targets this context allocated
+        self.programs: dict = {}  # shader source -> its vtkShaderProgram
         self.uniform_values: dict[str, dict] = {}  # shader source -> uniform -> what its program holds
         self.row_blocked: dict[int, int] = {}  # id -> image height of a target drawn row-blocked, until read back
         # when a dict: every draw waits for the passes before it, and for itself, and adds its seconds
@@ -335,7 +336,12 @@ class Context:
                 fbo.AddColorAttachment(0, target)
                 fbo.ActivateDrawBuffer(0)
             fbo.Start(width, height)
-            program = self.window.GetShaderCache().ReadyShaderProgram(self.vertex_shader, fs, "")
+            # by source the cache hashes the shader texts on every call; the program object binds directly
+            program = self.programs.get(fs)
+            if program is None:
+                program = self.programs[fs] = self.window.GetShaderCache().ReadyShaderProgram(self.vertex_shader, fs, "")
+            else:
+                self.window.GetShaderCache().ReadyShaderProgram(program)
             for key, zero in (linear or {}).items():
                 self._linear(inputs[key], zero)
             # a program keeps its uniforms: set only those that changed since its last draw (about 56 per
