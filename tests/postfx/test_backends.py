@@ -303,3 +303,24 @@ def test_row_blocked_last_pass_is_read_back_in_place_and_its_target_reused_clean
         ref = postfx.apply_chain(img, None, chain, lens, backend="numpy").image
         gpu = postfx.apply_chain(img, None, chain, lens, backend="osmesa").image
         assert np.abs(ref - gpu).max() <= 1e-5
+
+
+@needs_osmesa
+@pytest.mark.osmesa
+@pytest.mark.parametrize("h, w", [(120, 160), (23, 37), (75, 100), (480, 640)])
+def test_dof_gather_stores_every_output(h, w):
+    """The gather stores every output with imageStore (partial blocks at odd sizes): the output target
+    comes from the pool pre-filled with NaN here, so an output it missed would show (a pooled target
+    holding an earlier, equal result would hide it)."""
+    rng = np.random.default_rng(h + w)
+    img = (rng.random((h, w, 3)) * 3.0).astype(np.float32)
+    depth = (0.05 + 0.2 * rng.random((h, w))).astype(np.float32)
+    lens = postfx.Lens(70.0, w, h)
+    p = DepthOfField(focus_distance=0.1, aperture=0.003, max_radius_px=6.0)
+    ctx = osmesa.Context.get()
+    nan = ctx.upload(np.full((h, w, 3), np.nan, np.float32))
+    ctx.release(ctx.draw("copy", {"img": nan}, {}, w, h))  # the next w x h target holds NaN
+    gpu, _, _ = osmesa.run_chain(img, depth, [("depth_of_field", p)], lens)
+    ref = postfx.apply_effect("depth_of_field", img, depth, p, lens)
+    assert np.isfinite(gpu).all()
+    assert np.abs(gpu - ref).max() <= 1e-5 * float(np.abs(ref).max())
