@@ -148,12 +148,23 @@ def _gauss_writes() -> str:
 GAUSS_PLAIN_V = 3
 
 
+def _column_blocks_tap(x: str, y0: str) -> str:
+    """GLSL lines defining ``tap(d)``: texel (``x``, ``y0`` + d) of ``rows``, the horizontal pass's target
+    (blocks of GAUSS_BLOCK columns, layer = column mod GAUSS_BLOCK; rows clamped to the edge)."""
+    return (f"  vec3 rs = vec3(textureSize(rows, 0));\n"
+            f"  float u = (float({x} / {GAUSS_BLOCK}) + 0.5) / rs.x;\n"
+            f"  float layer = (float({x} % {GAUSS_BLOCK}) + 0.5) / rs.z;\n"
+            f"#define tap(d) texture(rows, vec3(u, (float({y0} + d) + 0.5) / rs.y, layer)).rgb\n")
+
+
 def _gauss_rows_out(R: int) -> None:
-    """``gauss_vb<R>`` (and ``gauss_vb<R>u``, the unsharp mask): the vertical pass of a Gaussian of radius
-    R <= GAUSS_PLAIN_V for the chain's last pass, GAUSS_BLOCK rows per fragment from GAUSS_BLOCK + 2R
-    fetches (instead of 2R + 1 per row), written into the layers of a 3D target, layer = row mod
-    GAUSS_BLOCK, which ``Context.download`` reads back row by row into place. The same sums, in the
-    same order, as ``gauss_vp<R>``; the pointwise epilogue runs on each row's value."""
+    """``gauss_vb<R>`` (``gauss_vb<R>u``, ``gauss_vb<R>U``: the unsharp mask of an image, of a row-blocked
+    one): the vertical pass of a Gaussian of radius R <= GAUSS_PLAIN_V whose result goes to the read-back
+    or to another such Gaussian, GAUSS_BLOCK rows per fragment from GAUSS_BLOCK + 2R fetches (instead of
+    2R + 1 per row), written "row-blocked" into the layers of a 3D target, layer = row mod GAUSS_BLOCK:
+    ``Context.download`` reads it back row by row into place, ``gauss_h<R>r`` and the "U" passes read it
+    in place. The same sums, in the same order, as ``gauss_vp<R>``; the pointwise epilogue runs on each
+    row's value."""
     unsharp = "".join(f"  x = texture(orig, vec2(ox, (float(y0 + {b}) + 0.5) * oy)).rgb;\n"
                       f"  a{b} = clamp(x + amount * (x - a{b}), 0.0, 1.0);\n" for b in range(GAUSS_BLOCK))
     # orig row-blocked too (the Gaussian before wrote it): output b of this block is its texel (x, block, b)
@@ -172,12 +183,8 @@ uniform ivec2 blocks;
 //EPILOGUE::Dec
 void main() {{
   ivec2 b = ivec2(texCoord * vec2(blocks));
-  vec3 rs = vec3(textureSize(rows, 0));
-  float u = (float(b.x / {GAUSS_BLOCK}) + 0.5) / rs.x;
-  float layer = (float(b.x % {GAUSS_BLOCK}) + 0.5) / rs.z;
   int y0 = b.y * {GAUSS_BLOCK};
-#define tap(d) texture(rows, vec3(u, (float(y0 + d) + 0.5) / rs.y, layer)).rgb
-{_gauss_taps("tap", R)}""" + (f"  vec3 x;\n  float ox = (float(b.x) + 0.5) / float(size.x), oy = 1.0 / float({oy});\n"
+{_column_blocks_tap("b.x", "y0")}{_gauss_taps("tap", R)}""" + (f"  vec3 x;\n  float ox = (float(b.x) + 0.5) / float(size.x), oy = 1.0 / float({oy});\n"
                                + code if orig else "") + writes + "}\n"
 
 
@@ -226,11 +233,7 @@ uniform ivec2 size;
 //EPILOGUE::Dec
 void main() {{
   ivec2 p = ivec2(texCoord * vec2(size));
-  vec3 rs = vec3(textureSize(rows, 0));
-  float u = (float(p.x / {GAUSS_BLOCK}) + 0.5) / rs.x;
-  float layer = (float(p.x % {GAUSS_BLOCK}) + 0.5) / rs.z;
-#define tap(d) texture(rows, vec3(u, (float(p.y + d) + 0.5) / rs.y, layer)).rgb
-{_gauss_taps("tap", R, 1)}{code}  gl_FragData[0] = vec4(post(a0, p, size), 1.0);
+{_column_blocks_tap("p.x", "p.y")}{_gauss_taps("tap", R, 1)}{code}  gl_FragData[0] = vec4(post(a0, p, size), 1.0);
 }}
 """
         _gauss_rows_out(R)
@@ -240,12 +243,8 @@ uniform float wts[{2 * R + 1}];
 uniform ivec2 blocks;
 void main() {{
   ivec2 b = ivec2(texCoord * vec2(blocks));
-  vec3 size = vec3(textureSize(rows, 0));
-  float u = (float(b.x / {GAUSS_BLOCK}) + 0.5) / size.x;
-  float layer = (float(b.x % {GAUSS_BLOCK}) + 0.5) / size.z;
   int y0 = b.y * {GAUSS_BLOCK};
-#define tap(d) texture(rows, vec3(u, (float(y0 + d) + 0.5) / size.y, layer)).rgb
-{_gauss_taps("tap", R)}{_gauss_writes()}}}
+{_column_blocks_tap("b.x", "y0")}{_gauss_taps("tap", R)}{_gauss_writes()}}}
 """
     return horizontal, vertical
 
