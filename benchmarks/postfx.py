@@ -25,8 +25,9 @@ the read-back), each draw waited for before and after, medians over the runs aft
 Each figure is the median of several runs after one warm-up (compilation, context creation); every
 timed chain starts after a 50 ms pause (PAUSE_S: numba's OpenMP workers stop spinning); the effects
 alone run back to back, each backend's runs together. ``--backends osmesa`` (or ``numpy``) times one
-backend in the process (no ratio keys): a program uses one backend, and the rendered frame's osmesa
-chain ran 33-34 ms alone but 43-51 ms right after numpy chains in the same process (docs/postfx.md).
+backend in the process (no ratio keys). The osmesa chain runs with its keep-awake threads unless
+TISSUERENDER_GL_KEEP_AWAKE=0 (postfx/keep_awake.py; the "machine" string says which); their CPU time is
+in osmesa_cpu_ms_total.
 """
 from __future__ import annotations
 
@@ -48,7 +49,7 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 import postfx  # noqa: E402
-from postfx import osmesa  # noqa: E402
+from postfx import keep_awake, osmesa  # noqa: E402
 from postfx.params import (Bloom, Blur, ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask,  # noqa: E402
                            LensFlare, SensorNoise, Sharpen, Tonemap)
 
@@ -222,6 +223,7 @@ def main() -> None:
         result["osmesa_skipped"] = "libOSMesa missing (Debian package libosmesa6)"
     result["machine"] = (f"{platform.machine()} {os.cpu_count()} cpus, numba threads {numba.get_num_threads()}, "
                          f"LP_NUM_THREADS {os.environ.get('LP_NUM_THREADS', 'default')}, "
+                         f"GL keep-awake threads {'on' if keep_awake.enabled() else 'off'}, "
                          f"numba threading layer {numba.threading_layer()}, pause {PAUSE_S * 1e3:.0f} ms before each run, "
                          f"load average {os.getloadavg()[0]:.2f}")
     print(json.dumps(result))
