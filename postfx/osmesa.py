@@ -386,13 +386,13 @@ class Context:
             self.profile[key] = self.profile.get(key, 0.0) + time.perf_counter() - t0
 
     def download(self, tex, clip: bool = False) -> np.ndarray:
-        """Read a target back as a new (H, W, 3) float32 array, clipped to [0, 1] with ``clip``. glReadPixels
-        of RGBA into a host array kept from call to call (RGBA32F to RGBA is a copy in Mesa, 0.29 ms at
-        640x480, where RGB converts, 0.48 ms, and a new array faults its pages in on every call, about 1
-        ms), then the RGB channels into the result in one loop (0.3 ms; NumPy's clip of the strided view
-        took 1.6 ms). A row-blocked target
-        (``row_blocked``: layer k holds rows k, k + L, ...) is read layer by layer, each row landing in its
-        place (GL_PACK_ROW_LENGTH of L rows)."""
+        """Read a target back as a new (H, W, 3) float32 array, clipped to [0, 1] with ``clip``.
+
+        glReadPixels of RGBA into a host array kept from call to call (RGBA32F to RGBA is a copy in Mesa,
+        0.29 ms at 640x480, where RGB converts, 0.48 ms, and a new array faults its pages in on every
+        call, about 1 ms), then the RGB channels into the result in one loop (0.3 ms; NumPy's clip of the
+        strided view took 1.6 ms). A row-blocked target (``row_blocked``: layer k holds rows k, k + L,
+        ...) is read layer by layer, each row landing in its place (GL_PACK_ROW_LENGTH of L rows)."""
         t0 = time.perf_counter()
         width = tex.GetWidth()
         height = self.row_blocked.pop(id(tex), None)
@@ -712,9 +712,10 @@ def effect_on_gpu(ctx: Context, name: str, tex, depth: np.ndarray, params, lens,
     be None for the depth of field, which then reads the frame ``host`` from the CPU. ``rows_out``: a
     blur or sharpen may leave its result row-blocked (``_gaussian``); only ``takes_rows`` effects and
     ``Context.download`` read such a texture."""
+    from postfx import lens_flare
+
     if tex is not None and id(tex) in ctx.row_blocked and not takes_rows(name, params):
         raise ValueError(f"{name} cannot read a row-blocked image")
-    from postfx import lens_flare
 
     if name == "depth_of_field":
         return _depth_of_field(ctx, tex, depth, params, lens, _Epilogue(ctx, epilogue, *(
@@ -782,9 +783,10 @@ def fused_groups(chain, fuse: bool = True):
 
 def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fuse: bool = True, clip: bool = False):
     """The whole chain on the GL side: one upload, one read-back. Returns the image (clipped to [0, 1]
-    with ``clip``, as ``postfx.apply_chain`` returns it), the seconds of
-    each group of fused effects (keyed by the effect's name, or by the names joined with "+" when
-    pointwise effects were drawn in its last pass) and the total seconds including the transfers.
+    with ``clip``, as ``postfx.apply_chain`` returns it), the seconds of each group of fused effects
+    (keyed by the effect's name, or by the names joined with "+" when pointwise effects were drawn in
+    its last pass) and the total seconds including the transfers. ``keep_awake`` threads spin while it
+    runs unless TISSUERENDER_GL_KEEP_AWAKE=0.
 
     The passes are queued without waiting for each other: llvmpipe's threads go from one pass to the
     next while this thread prepares the ones after, instead of sleeping after every effect (on this
