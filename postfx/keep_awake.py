@@ -15,7 +15,9 @@ preempts them at once when a normal thread wakes there, so they take no time fro
 process or from other programs. They spin only inside ``KeepAwake`` (a chain): an atomic load of a flag
 (with the x86 ``pause`` hint) and a ``sched_yield`` per turn; otherwise they wait on a condition. Where
 ``SCHED_IDLE`` cannot be set they do nothing (spinning at normal priority would compete with llvmpipe).
-Set the environment variable ``TISSUERENDER_GL_KEEP_AWAKE=0`` to switch them off. Their CPU time counts
+When other programs keep every CPU busy the threads do not run at all, and a chain waits at most 0.5 ms
+for them (rendered frame with two busy loops running: 0.991 of the time without the threads). Set the
+environment variable ``TISSUERENDER_GL_KEEP_AWAKE=0`` to switch them off. Their CPU time counts
 in the process's CPU time (the benchmark's ``osmesa_cpu_ms_total``).
 """
 from __future__ import annotations
