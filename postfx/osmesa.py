@@ -482,7 +482,7 @@ def _gaussian(ctx, tex, sigma, orig=None, amount=0.0, epilogue=None, rows_out=Fa
         return out
     if unsharp == "U" and R > shaders.GAUSS_PLAIN_V:
         raise ValueError("a row-blocked image goes only to Gaussians of radius <= GAUSS_PLAIN_V")
-    if (weights.size - 1) // 2 <= shaders.GAUSS_PLAIN_V:  # one output per fragment, straight into the image
+    if R <= shaders.GAUSS_PLAIN_V:  # one output per fragment, straight into the image
         inputs = {"rows": rows, **({} if orig is None else {"orig": orig}), **ep.inputs}
         uniforms = {"wts": wts, "size": IVec2((w, h)), **ep.uniforms}
         if orig is not None:

@@ -1007,7 +1007,9 @@ def sweeps_f32(x, X, node_index, params, out, corners, free_nodes, free_start, f
 @njit(cache=True)
 def _node_range_f32(x, X, of, cf, free_nodes, free_start, free_slot, node_scale, q0, q1):
     """The node pass of :func:`sweeps_f32` for free nodes ``q0:q1`` (the same code); False when a position is
-    non-finite."""
+    non-finite. Its write-back loop repeats :func:`_node_range`'s on purpose: one shared
+    ``inline="always"`` helper for both cost 12-14 % of the float32 rate (zhang_rates, 504 tets, one thread,
+    alternating: 8,805 / 9,217 vs 10,327 / 10,688 Hz; float64 6,338 / 6,262 vs 6,726 / 7,013 Hz)."""
     finite = True
     for q in range(q0, q1):
         k0 = free_start[q]
