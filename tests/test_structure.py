@@ -22,6 +22,7 @@ depends on them either way. What makes an edge from module ``m``:
 from __future__ import annotations
 
 import ast
+import functools
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -246,13 +247,13 @@ def headings(markdown: str) -> list[str]:
     return out
 
 
-# `docs/design.md#anchor`, or `docs/design.md, "Heading"` (also `: "..."`, `section "..."`, and with the
+# `docs/design.md#anchor`, or `docs/design.md, "Heading"` (also `: "..."`, `("...")`, `section "..."`, and with the
 # quoted heading on the next comment line); a bare `docs/design.md` names no section and is tolerated.
 # Inside docs/ a relative `design.md#anchor` link is a reference too.
 _REFERENCE = re.compile(
     r"(?P<file>(?:docs/|\./|(?<![\w/.]))design\.md)"
     r"(?:#(?P<anchor>[\w\-]+)"
-    r"|[ \t]*[,:]?[ \t]*(?:\n[ \t]*(?:#|//|\*|>)?[ \t]*)?(?:section[ \t]+)?[\"\u201c](?P<name>[^\s\"\u201d][^\"\u201d]{0,200})[\"\u201d])"
+    r"|[ \t]*[,:]?[ \t]*(?:\n[ \t]*(?:#|//|\*|>)?[ \t]*)?(?:section[ \t]+)?\(?[\"\u201c](?P<name>[^\s\"\u201d][^\"\u201d]{0,200})[\"\u201d])"
 )
 _CONTINUATION = re.compile(r"\n[ \t]*(?:#|//|\*|>)?[ \t]*")
 
@@ -317,6 +318,7 @@ def outside_design_citations(root: Path, skip=()) -> list[str]:
 # --- the project's own tree ---------------------------------------------------------------------------------
 
 
+@functools.lru_cache(maxsize=1)
 def _project_graph():
     modules = project_modules(ROOT)
     return modules, import_edges(ROOT, modules)
@@ -459,6 +461,7 @@ def test_reference_checker_names_file_line_and_missing_heading(tmp_path):
             'docs/design.md#zhang-ch-5-ebm-57-58-510511-515 and docs/design.md, "Zhang ch. 5: EB"."""\n'
             '# a wrapped one: docs/design.md,\n#   "The plan"; a missing one: docs/design.md, "Not here"\n'
             '# in a code block: docs/design.md, "not a heading"\n'
+            '# parenthesised: docs/design.md ("The plan") and docs/design.md ("Gone")\n'
         ),
     })
     missing = missing_design_sections(tmp_path)
@@ -466,6 +469,7 @@ def test_reference_checker_names_file_line_and_missing_heading(tmp_path):
         'app/__init__.py:2: no heading "Zhang ch. 5: EB" in docs/design.md',
         'app/__init__.py:4: no heading "Not here" in docs/design.md',
         'app/__init__.py:5: no heading "not a heading" in docs/design.md',
+        'app/__init__.py:6: no heading "Gone" in docs/design.md',
         "docs/other.md:1: no heading with anchor #gone in docs/design.md",
     ]
     _write(tmp_path, {"app/old.py": "# see " + "DESIGN" + ".md\n"})
