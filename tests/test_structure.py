@@ -114,31 +114,57 @@ def _targets(node: ast.AST, module: str, package: list[str], modules) -> list[tu
             return [(resolved, "dynamic")] if resolved else []
     if isinstance(node, ast.Constant) and isinstance(node.value, str):
         match = _ENTRY_POINT.match(node.value)
-        if match and match.group(1) in modules:
+        if match and match.group(1).split(".")[0] in {m.split(".")[0] for m in modules}:
             return [(match.group(1), "registry")]
     return []
 
 
-def import_edges(root: Path, modules: dict[str, Path]) -> list[Edge]:
-    """Every dependency edge between project modules (see the module docstring for what counts)."""
-    edges = []
+@dataclass(frozen=True)
+class ImportSite:
+    module: str
+    path: str  # relative to the root
+    line: int
+    name: str  # the dotted module the statement names (``from X import a``: X.a where that is a module, else X)
+    kind: str
+
+
+def import_sites(root: Path, modules: dict[str, Path]) -> list[ImportSite]:
+    """Every import of the given modules, as written (resolved relative names, not yet matched to files)."""
+    sites = []
     for module, path in modules.items():
         package = _package_of(module, path)
         rel = path.relative_to(root).as_posix()
         tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
         for node in ast.walk(tree):
-            for name, kind in _targets(node, module, package, modules):
-                target = _longest_module(name, modules)
-                if target is None:
-                    continue  # not ours
-                if target != module:
-                    edges.append(Edge(module, target, rel, node.lineno, kind))
-                # the __init__ of every package on the way, except one that contains `module`
-                parts = target.split(".")
-                for i in range(1, len(parts)):
-                    parent = ".".join(parts[:i])
-                    if parent in modules and parent != module and not module.startswith(parent + "."):
-                        edges.append(Edge(module, parent, rel, node.lineno, "package"))
+            sites += [ImportSite(module, rel, node.lineno, name, kind)
+                      for name, kind in _targets(node, module, package, modules)]
+    return sites
+
+
+def unresolved_imports(root: Path, modules: dict[str, Path]) -> list[ImportSite]:
+    """Imports naming a module of our packages that has no file (a stale path after a move; an import
+    inside a function or a registry string fails only when it runs)."""
+    ours = {m.split(".")[0] for m in modules}
+    bad = {s for s in import_sites(root, modules) if s.name.split(".")[0] in ours and s.name not in modules}
+    return sorted(bad, key=lambda s: (s.path, s.line, s.name))
+
+
+def import_edges(root: Path, modules: dict[str, Path]) -> list[Edge]:
+    """Every dependency edge between project modules (see the module docstring for what counts)."""
+    edges = []
+    for site in import_sites(root, modules):
+        module = site.module
+        target = _longest_module(site.name, modules)  # a module that has no file counts as its package
+        if target is None:
+            continue  # not ours
+        if target != module:
+            edges.append(Edge(module, target, site.path, site.line, site.kind))
+        # the __init__ of every package on the way, except one that contains `module`
+        parts = target.split(".")
+        for i in range(1, len(parts)):
+            parent = ".".join(parts[:i])
+            if parent in modules and parent != module and not module.startswith(parent + "."):
+                edges.append(Edge(module, parent, site.path, site.line, "package"))
     return edges
 
 
@@ -330,6 +356,13 @@ def test_no_import_cycles():
     assert not cycles, f"{len(cycles)} import cycle(s) among the project's modules:\n" + describe_cycles(cycles, edges)
 
 
+def test_every_import_of_ours_names_an_existing_module():
+    modules, _ = _project_graph()
+    bad = unresolved_imports(ROOT, modules)
+    assert not bad, "imports of project modules that do not exist:\n" + "\n".join(
+        f"    {s.path}:{s.line}: {s.name} ({s.kind})" for s in bad)
+
+
 def test_no_module_over_600_lines():
     modules, _ = _project_graph()
     too_long = long_modules(modules, ROOT)
@@ -427,6 +460,20 @@ def test_cycle_checker_reports_a_three_module_cycle_with_its_edges(tmp_path):
     assert cycles == [["app.bodies", "app.scene", "app.scene.load"]]
     report = describe_cycles(cycles, edges)
     assert "app.scene.load -> app.bodies (app/scene/load.py:2, import)" in report
+
+
+def test_unresolved_checker_names_stale_imports_registry_strings_and_dynamic_names(tmp_path):
+    _write(tmp_path, {
+        "app/__init__.py": "import numpy\nfrom app import there\n",
+        "app/there.py": "from app.there import NAME\nNAME = 1\n",
+        "app/moved.py": ("def f():\n    from app.old import g, h\n"
+                         "R = {'x': 'app.gone:Solver', 'y': 'app.there:NAME'}\n"
+                         "import importlib\nimportlib.import_module('app.missing')\n"),
+    })
+    modules = project_modules(tmp_path, ("app",))
+    bad = [(s.path, s.line, s.name, s.kind) for s in unresolved_imports(tmp_path, modules)]
+    assert bad == [("app/moved.py", 2, "app.old", "import"), ("app/moved.py", 3, "app.gone", "registry"),
+                           ("app/moved.py", 5, "app.missing", "dynamic")]
 
 
 def test_size_checker_names_a_planted_long_module(tmp_path):
