@@ -1,6 +1,7 @@
-"""The shape of the code (issue 15, items 3, 4 and 6): no import cycles among the project's modules, no
-module over 600 lines, dependencies only in the allowed direction, and every citation of
-``docs/design.md`` names a heading that exists there.
+"""The shape of the code (issue 15, items 3, 4 and 6): no import cycles among the project's modules, every
+import of ours names a module that exists, no module over 600 lines, dependencies only in the allowed
+direction, and every citation of ``docs/design.md`` names a heading that exists there (none cites the
+upper-case design document kept outside the repository).
 
 The import graph is read from the source with ``ast`` (nothing is imported), so imports inside
 functions, under ``TYPE_CHECKING`` and in ``try`` blocks count like the ones at the top: a reader
