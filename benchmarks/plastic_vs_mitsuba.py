@@ -28,7 +28,7 @@ import postfx  # noqa: E402
 from materials import get_preset  # noqa: E402
 from postfx.params import Tonemap  # noqa: E402
 from tissuerender.golden import flip  # noqa: E402
-from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, light_frame, render_frame  # noqa: E402
+from tissuerender.renderer.frame import AreaLight, Camera, RenderObject, RenderSettings, light_frame, render_frame  # noqa: E402
 
 
 def plane(size=1.0, z=0.0, tilt_deg=0.0):

@@ -130,8 +130,8 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
 
 
 def renderer():
-    """The deferred renderer module (``tissuerender.render``)."""
-    return importlib.import_module("tissuerender.render")
+    """The deferred renderer module (``tissuerender.renderer``)."""
+    return importlib.import_module("tissuerender.renderer")
 
 
 def camera_for(scene: Scene, width: int | None = None, height: int | None = None):

@@ -1,13 +1,13 @@
 """Direct lighting of the G-buffer in one numba pass: for every shading point, its m light samples,
 their shadow rays and the BRDF, with no per-sample arrays.
 
-It computes exactly what the NumPy path in :mod:`tissuerender.render.frame` computes for the same
+It computes exactly what the NumPy path in :mod:`tissuerender.renderer.frame` computes for the same
 points (the same Hammersley points rotated per pixel, the same ``A / m`` weights, the same Cook–Torrance
-terms of :func:`tissuerender.render.brdf.reflectance_cos` and the same mucosa stack of
-:func:`tissuerender.render.brdf.layered_reflectance_cos`; tests compare the two to 1e-9), but:
+terms of :func:`tissuerender.renderer.brdf.reflectance_cos` and the same mucosa stack of
+:func:`tissuerender.renderer.brdf.layered_reflectance_cos`; tests compare the two to 1e-9), but:
 
 - parallel loops over pixels: ``light_rays`` writes one shadow ray per sample (zero-length where the
-  sample cannot contribute); the ray backend (:mod:`tissuerender.render.rays`, Embree or our BVH) answers
+  sample cannot contribute); the ray backend (:mod:`tissuerender.renderer.rays`, Embree or our BVH) answers
   them in one batch; ``shade_direct`` evaluates the BRDF of the visible samples;
 - a sample whose light cosine or surface cosine is zero contributes nothing, so its shadow ray has zero
   length (the NumPy path traces it and multiplies by zero).

@@ -21,7 +21,7 @@ import functools
 
 import numpy as np
 
-from tissuerender.render.brdf import angle_cosines, ggx_D
+from tissuerender.renderer.brdf import angle_cosines, ggx_D
 
 
 def fresnel(cos_i: np.ndarray, eta: float) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Ray queries for shadows, thickness and ambient occlusion: our numba BVH or Intel Embree.
 
-Both answer the same two questions with the same conventions (``tissuerender.render.bvh.BVH``):
+Both answer the same two questions with the same conventions (``tissuerender.renderer.bvh.BVH``):
 ``occluded(origins, targets, eps)`` (a triangle strictly between the two points, the segment shortened
 by ``eps`` at both ends) and ``closest_hit(origins, directions, t_max)``.
 
@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numba
 import numpy as np
 
-from tissuerender.render.bvh import BVH
+from tissuerender.renderer.bvh import BVH
 
 BACKENDS = ("auto", "embree", "numba")
 MIN_RAYS_PER_THREAD = 20_000

@@ -7,7 +7,7 @@ import pytest
 
 from materials import get_preset
 from materials.optics import MucosaLayers
-from tissuerender.render.brdf import layered_reflectance_cos, reflectance_cos, refracted_cos
+from tissuerender.renderer.brdf import layered_reflectance_cos, reflectance_cos, refracted_cos
 
 
 def _dirs(theta_o, k):
@@ -102,7 +102,7 @@ def test_colon_mucosa_preset_has_the_stack_and_its_base_colour():
 
 
 def test_colon_mucosa_texture_varies_across_the_surface_and_keeps_its_mean_colour():
-    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+    from tissuerender.renderer.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
 
     pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
     uv = pts[:, :2] * 1.0  # metres, like the box projection of procedural bodies
@@ -120,7 +120,7 @@ def test_colon_mucosa_texture_varies_across_the_surface_and_keeps_its_mean_colou
 
 
 def test_mucosa_relief_bends_the_shading_normals_slightly():
-    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+    from tissuerender.renderer.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
 
     pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
     slab = RenderObject(points=pts, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=pts[:, :2] * 1.0,
@@ -137,7 +137,7 @@ def test_mucosa_relief_bends_the_shading_normals_slightly():
 def test_mucosa_roughness_map_modulates_the_tissue_and_granular_roughness():
     """The bake's roughness map reaches shading: the G-buffer roughness follows the mottle within
     0.7 ... 1.3 x the preset's alpha and averages to it."""
-    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+    from tissuerender.renderer.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
 
     pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
     slab = RenderObject(points=pts, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=pts[:, :2] * 1.0,
@@ -156,7 +156,7 @@ def test_mucosa_roughness_map_modulates_the_tissue_and_granular_roughness():
 
 
 def test_layer_channels_exist_only_with_a_layered_material_and_hold_its_values():
-    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+    from tissuerender.renderer.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
 
     pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
     cam = Camera(position=(0.0, 0.0, 0.08), look_at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg=60.0,

@@ -20,10 +20,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import materials
-from tissuerender.render.brdf import layered_reflectance_cos, reflectance_cos
-from tissuerender.render.plastic import roughplastic_cos
-from tissuerender.render.rays import ray_scene
-from tissuerender.render.raster import (box_downsample, camera_basis, interpolate_gbuffer,
+from tissuerender.renderer.brdf import layered_reflectance_cos, reflectance_cos
+from tissuerender.renderer.plastic import roughplastic_cos
+from tissuerender.renderer.rays import ray_scene
+from tissuerender.renderer.raster import (box_downsample, camera_basis, interpolate_gbuffer,
                                          interpolate_vertex_scalar, material_lookup, rasterize_objects,
                                          scatter_radiance)
 from tissuerender.stages import StageRecorder, recorder_or_new
@@ -102,7 +102,7 @@ class RenderSettings:
     ao_samples: int = 8
     jitter: bool = True  # supersampling: each sample at a seeded random point of its cell (False: cell centres)
     fused: bool = True  # numba direct-lighting passes (shade_kernel); False: the NumPy estimator only
-    ray_backend: str = "auto"  # "auto" | "embree" | "numba" (tissuerender.render.rays)
+    ray_backend: str = "auto"  # "auto" | "embree" | "numba" (tissuerender.renderer.rays)
 
 
 @dataclass
@@ -218,7 +218,7 @@ def sample_offsets(rows: np.ndarray, cols: np.ndarray, ss: int, pattern: str, se
         return rng.random((rows.shape[0], 2)), 1, np.zeros(rows.shape[0], np.int64)
     if pattern != "blue_noise":
         raise ValueError(f"light pattern must be 'blue_noise' or 'white_noise', found {pattern!r}")
-    from tissuerender.render import bluenoise
+    from tissuerender.renderer import bluenoise
 
     rotation, phase = bluenoise.rotations(rows, cols, seed, ss)
     return rotation, ss * ss, phase
@@ -305,7 +305,7 @@ def irradiance(pos: np.ndarray, n: np.ndarray, light: AreaLight, camera: Camera,
 def unshadowed_cosine_integral(pos: np.ndarray, n: np.ndarray, centre, ln, eu, ev) -> np.ndarray:
     """Closed-form ``int_light (n.wi) cos(theta_l) / r^2 dA`` [sr] per point (horizon-clipped polygon,
     ``shade_kernel.rect_cosine_integral``): the irradiance per unit radiance without occlusion."""
-    from tissuerender.render.shade_kernel import cosine_integrals
+    from tissuerender.renderer.shade_kernel import cosine_integrals
 
     pos = np.ascontiguousarray(pos, np.float64).reshape(-1, 3)
     out = np.empty(pos.shape[0])
@@ -446,8 +446,8 @@ def _layer_arrays(optics, mat):
 def material_tables(optics):
     """Per-material parameters for the numba shading pass (``shade_kernel.shade_direct``), indexed by the
     G-buffer's material id."""
-    from tissuerender.render import shade_kernel as sk
-    from tissuerender.render.plastic import _coating_transmittance, internal_diffuse_reflectance
+    from tissuerender.renderer import shade_kernel as sk
+    from tissuerender.renderer.plastic import _coating_transmittance, internal_diffuse_reflectance
 
     k = max(len(optics), 1)
     kind = np.zeros(k, np.int64)
@@ -483,7 +483,7 @@ def _penumbra_points(bits, pixel, shape):
     """Points to re-shade: every sample of a pixel whose first shadow rays disagree (bits 3 over the pixel's
     supersamples) or of one of its 8 neighbours (a penumbra the first rays happened to miss is often next
     to one they caught)."""
-    from tissuerender.render.shade_kernel import pixel_or
+    from tissuerender.renderer.shade_kernel import pixel_or
 
     mixed = np.zeros(shape[0] * shape[1], np.uint8)
     pixel_or(np.ascontiguousarray(pixel, np.int64), bits, mixed)
@@ -503,7 +503,7 @@ def _shade_fused(pos, n, wo, albedo, alpha, mat, thickness, rough_factor, optics
     ``rays`` (the frame's ray scene) None means no shadows. ``penumbra_samples`` > 0 (with shadows): points
     of pixels (``pixel``: each point's index in the output image of ``shape``) whose shadow rays disagree,
     and of their neighbours, are shaded again with that many samples, which replace the first ones."""
-    from tissuerender.render.shade_kernel import cosine_integrals, light_rays, shade_direct, visibility_bits
+    from tissuerender.renderer.shade_kernel import cosine_integrals, light_rays, shade_direct, visibility_bits
 
     k = pos.shape[0]
     if k == 0:
@@ -652,7 +652,7 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         # the layer channels exist only when a layered material is in view: each point's connective and
         # submucosa colours (k, 2, 3), and the weight of the wet (mucus) reflection, the coat's Fresnel
         # reflectance at the viewing angle (0 off the mucosa)
-        from tissuerender.render.brdf import dielectric_F
+        from tissuerender.renderer.brdf import dielectric_F
 
         stacks = [o.layers for o in optics]
         colours = np.array([[st.connective_colour, st.submucosa_colour] if st is not None else [[0.0] * 3] * 2
@@ -733,8 +733,8 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         radiance *= np.asarray(light.radiance, float)
     if settings.mucus_reflection and layered is not None and layered["mask"].any():
         with rec.run("mucus_reflection"):
-            from tissuerender.render import sh
-            from tissuerender.render.brdf import dielectric_F
+            from tissuerender.renderer import sh
+            from tissuerender.renderer.brdf import dielectric_F
 
             idx = np.flatnonzero(layered["mask"])
             env = sh.gradient_environment(settings.environment_up, settings.environment_down,

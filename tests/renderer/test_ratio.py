@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tissuerender.render import AreaLight, Camera, RenderObject, RenderSettings, render_frame
-from tissuerender.render.frame import irradiance, light_frame, unshadowed_cosine_integral
-from tissuerender.render.shade_kernel import rect_cosine_integral
+from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+from tissuerender.renderer.frame import irradiance, light_frame, unshadowed_cosine_integral
+from tissuerender.renderer.shade_kernel import rect_cosine_integral
 
 CAM = Camera((0, -1, 1), (0, 0, 0), (0, 0, 1), 60, 0.01, 10, 8, 8)
 
