@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from tissuerender.renderer import sh
-from tissuerender.renderer.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame
 
 
 def _directions(k=500, seed=0):
