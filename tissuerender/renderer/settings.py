@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 @dataclass
 class RenderSettings:
+    """The switches of one frame; each stage of ``frame.render_frame`` runs only when they ask for it."""
+
     shadows: bool = False
     sss: bool = False
     sss_thickness: str = "vertex"  # thickness rays from the vertices (interpolated) or from every shading point
