@@ -2,8 +2,9 @@
 
 rasterise -> G-buffer -> ray scene -> thickness -> direct light -> environment -> resolve
 
-Each stage runs only when the settings ask for it and is timed under its name by the recorder
-(``raster``, ``bvh``, ``thickness``, ``shade`` with ``shadow_rays``, ``mucus_reflection``, ``ao``).
+Each stage runs only when the settings ask for it and is timed under its name (``raster``, ``bvh``,
+``thickness``, ``shade`` with ``shadow_rays``, ``mucus_reflection``, ``ao``) by the
+``tissuerender.stages.StageRecorder`` passed in.
 """
 from __future__ import annotations
 
@@ -44,13 +45,13 @@ class RenderObject:
 
 @dataclass
 class FrameResult:
-    """Linear HDR radiance (H, W, 3) float32, view depth (H, W) float32 (inf = background), the G-buffer
-    channels by name (per visible sample at the supersampled resolution) and each stage's seconds."""
+    """Linear HDR radiance (H, W, 3) float32, view depth (H, W) float32 (inf = background) and the G-buffer
+    channels by name (per visible sample at the supersampled resolution); the stages' seconds are in the
+    recorder."""
 
     hdr: np.ndarray
     depth: np.ndarray
     gbuffer: dict = field(default_factory=dict)
-    stage_seconds: dict = field(default_factory=dict)
 
 
 def check_light(light: AreaLight, settings: RenderSettings) -> bool:
@@ -162,4 +163,4 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
         radiance = direct_light(points, bsdfs, optics, light, camera, settings, fused, rays, eps, rec, gbuffer)
     environment_light(points, settings, rays, eps, radiance, rec, gbuffer)
     hdr, depth = resolve(radiance, points, raster, camera, settings.supersampling, rec)
-    return FrameResult(hdr=hdr, depth=depth, gbuffer=gbuffer, stage_seconds=dict(rec.seconds))
+    return FrameResult(hdr=hdr, depth=depth, gbuffer=gbuffer)
