@@ -28,7 +28,8 @@ import postfx  # noqa: E402
 from materials import get_preset  # noqa: E402
 from postfx.params import Tonemap  # noqa: E402
 from tissuerender.golden import flip  # noqa: E402
-from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, light_frame, render_frame  # noqa: E402
+from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame  # noqa: E402
+from tissuerender.renderer.light import light_frame  # noqa: E402
 
 
 def plane(size=1.0, z=0.0, tilt_deg=0.0):
@@ -67,7 +68,7 @@ def ours(spec, width, height, samples, ss):
                  width=width, height=height)
     light = AreaLight(size=lt["size"], radiance=(lt["radiance"],) * 3, attach="world", position=lt["position"],
                       normal=lt["normal"], sampling="uniform", samples=samples)
-    out = render_frame(objects, cam, light, RenderSettings(shadows=True, light_samples=samples, supersampling=ss))
+    out = render_frame(objects, cam, light, RenderSettings(shadows=True, supersampling=ss))
     return out.hdr.astype(np.float64), cam, light
 
 

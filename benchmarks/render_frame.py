@@ -29,7 +29,7 @@ import numba  # noqa: E402
 
 from tissuerender import load_scene, make_plan  # noqa: E402
 from tissuerender.pipeline import build_world, render_hdr  # noqa: E402
-from tissuerender.render import rays  # noqa: E402
+from tissuerender.renderer import rays  # noqa: E402
 from tissuerender.stages import StageRecorder  # noqa: E402
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "liver_probe.toml"

@@ -7,8 +7,6 @@ Python API (the CLI is a thin layer over it)::
     print(tissuerender.make_plan(scene).describe())          # the stages that will run, and why
     tissuerender.render(scene, "out/")                       # frames + manifest.json
 """
-import importlib
-
 from tissuerender.errors import SceneError, UserError
 from tissuerender.scene import Scene, load_scene
 
@@ -19,8 +17,9 @@ __all__ = ["Scene", "SceneError", "UserError", "load_scene", "make_plan", "rende
 def __getattr__(name):
     # The pipeline pulls in numba kernels; import it only when a render is asked for.
     if name == "render":
-        # the renderer package, callable as render(scene, out_dir) (see tissuerender/render/__init__.py)
-        return importlib.import_module("tissuerender.render")
+        from tissuerender import pipeline
+
+        return pipeline.render
     if name == "render_image":
         from tissuerender import pipeline
 

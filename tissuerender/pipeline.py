@@ -130,8 +130,8 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
 
 
 def renderer():
-    """The deferred renderer module (``tissuerender.render``)."""
-    return importlib.import_module("tissuerender.render")
+    """The deferred renderer module (``tissuerender.renderer``)."""
+    return importlib.import_module("tissuerender.renderer")
 
 
 def camera_for(scene: Scene, width: int | None = None, height: int | None = None):
@@ -160,7 +160,7 @@ def settings_for(scene: Scene, seed: int):
 
     e = scene.effects
     return RenderSettings(shadows=e.shadows, sss=e.sss, sss_thickness=e.sss_thickness, ao=e.ao, mucus_reflection=e.mucus_reflection,
-                          light_samples=scene.light.samples, supersampling=scene.output.supersampling,
+                          supersampling=scene.output.supersampling,
                           jitter=scene.output.jitter,
                           seed=seed, motion=e.motion, ambient=tuple(e.ambient), ao_distance=e.ao_distance,
                           ao_samples=e.ao_samples, environment_up=tuple(e.environment_up),

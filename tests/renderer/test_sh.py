@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tissuerender.render import sh
-from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+from tissuerender.renderer import sh
+from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame
 
 
 def _directions(k=500, seed=0):

@@ -7,14 +7,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-
-def camera_basis(position, look_at, up):
-    """Orthonormal (right, up, forward) of a camera looking from ``position`` at ``look_at``."""
-    f = np.asarray(look_at, float) - np.asarray(position, float)
-    f /= np.linalg.norm(f)
-    r = np.cross(f, np.asarray(up, float))
-    r /= np.linalg.norm(r)
-    return r, np.cross(r, f), f
+from tissuerender.renderer.camera import camera_basis
 
 
 @njit(cache=True, parallel=True)

@@ -113,8 +113,8 @@ STORED = Path(__file__).with_name("bluenoise_64.npy")  # generate(64, 0) and gen
 @functools.lru_cache(maxsize=8)
 def texture(size: int = TILE, seed: int = 0) -> np.ndarray:
     """(size, size) blue-noise values, each of (k + 0.5) / size^2 exactly once (read-only). The two
-    tiles the renderer uses are stored (``STORED``, tested equal to the generator): generating one takes
-    about a second."""
+    tiles the renderer uses are stored (``STORED``, tested equal to the generator) rather than generated at
+    every start."""
     if size == TILE and seed in (0, 1) and STORED.exists():
         rank = np.load(STORED)[seed].astype(np.int64)
     else:

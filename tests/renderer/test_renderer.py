@@ -4,9 +4,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tissuerender.render import AreaLight, Camera, RenderObject, RenderSettings, render_frame
-from tissuerender.render.brdf import reflectance_cos
-from tissuerender.render.frame import irradiance, sample_counts
+from materials import get_preset
+from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+from tissuerender.renderer.bsdf.tissue import reflectance_cos
+from tissuerender.renderer.bvh import BVH
+from tissuerender.renderer.environment import ambient_occlusion
+from tissuerender.renderer.gbuffer import clip_near
+from tissuerender.renderer.light import importance_counts, irradiance, sample_counts
+from tissuerender.renderer.raster import box_downsample, jitter_offset, rasterize_objects
+from tissuerender.renderer.rays import EmbreeRays
 from tissuerender.stages import StageRecorder
 
 
@@ -233,9 +239,6 @@ def _ao_scene():
 
 
 def test_ambient_occlusion_is_one_in_the_open_and_one_half_in_a_corner():
-    from tissuerender.render.bvh import BVH
-    from tissuerender.render.frame import ambient_occlusion
-
     pts, tris = _ao_scene()
     bvh = BVH(pts, tris)
     n = np.tile([0.0, 0.0, 1.0], (3, 1))
@@ -249,9 +252,6 @@ def test_ambient_occlusion_is_one_in_the_open_and_one_half_in_a_corner():
 
 
 def test_ambient_light_on_a_lambertian_floor_is_albedo_times_radiance(tmp_path):
-    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
-    from materials import get_preset
-
     pts, tris = _ao_scene()
     floor = RenderObject(points=pts[:4], triangles=tris[:2], normals=None, uv=None, material="liver")
     cam = Camera(position=(0.1, 0.0, 0.3), look_at=(0.1, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg=30.0,
@@ -265,9 +265,6 @@ def test_ambient_light_on_a_lambertian_floor_is_albedo_times_radiance(tmp_path):
 
 
 def test_painted_importance_adds_samples_where_painted_and_keeps_brightness():
-    from tissuerender.render.frame import (AreaLight, Camera, RenderObject, RenderSettings, importance_counts,
-                                           render_frame)
-
     pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
     floor = RenderObject(points=pts, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=None,
                          material="liver")
@@ -277,7 +274,7 @@ def test_painted_importance_adds_samples_where_painted_and_keeps_brightness():
     light = AreaLight(samples=2, sampling="importance", importance=strokes)
     m = importance_counts(np.array([[0.02, 0.0, 0.0], [0.03, 0.0, 0.0], [-0.04, 0.0, 0.0]]), light)
     assert m[0] == 16 and 2 < m[1] < 16 and m[2] == 2
-    painted = render_frame([floor], cam, light, RenderSettings(light_samples=2, seed=1))
+    painted = render_frame([floor], cam, light, RenderSettings(seed=1))
     uniform = render_frame([floor], cam, AreaLight(samples=64, sampling="uniform"), RenderSettings(seed=1))
     assert painted.gbuffer["light_samples"].max() == 16
     # an unbiased estimator: the painted render matches a converged one on average
@@ -286,8 +283,6 @@ def test_painted_importance_adds_samples_where_painted_and_keeps_brightness():
 
 
 def test_reflection_cone_is_unbiased_and_cuts_highlight_noise():
-    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
-
     pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
     floor = RenderObject(points=pts, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=None,
                          material="colon_mucosa")  # a glossy wet coat: a sharp highlight
@@ -314,8 +309,6 @@ def test_reflection_cone_is_unbiased_and_cuts_highlight_noise():
 def test_floor_crossing_the_near_plane_has_no_holes(deg):
     # regression: vertices clipping put on the near plane could land a rounding error in front of it,
     # and the rasteriser then dropped the whole clipped triangle (a blank view at 40 degrees)
-    from tissuerender.render.frame import clip_near
-    from tissuerender.render.raster import rasterize_objects
 
     P = np.array([[-0.2, -0.2, 0.0], [0.2, -0.2, 0.0], [0.2, 0.2, 0.0], [-0.2, 0.2, 0.0]])
     T = np.array([[0, 1, 2], [0, 2, 3]])
@@ -350,8 +343,6 @@ def test_numba_light_passes_match_the_numpy_estimator(material, backend):
 def test_embree_and_numba_bvh_answer_the_same_ray_queries():
     """Shadow segments and closest hits through both ray backends on a closed, bumpy surface."""
     pytest.importorskip("embreex")
-    from tissuerender.render.bvh import BVH
-    from tissuerender.render.rays import EmbreeRays
 
     rng = np.random.default_rng(7)
     # a sphere of radius 0.1 made of 2 x 40 x 80 triangles, its radius varied by 5 %
@@ -377,8 +368,6 @@ def test_embree_and_numba_bvh_answer_the_same_ray_queries():
 
 
 def test_box_downsample_averages_blocks_and_keeps_the_nearest_depth():
-    from tissuerender.render.raster import box_downsample
-
     rng = np.random.default_rng(3)
     hdr = rng.random((8, 12, 3)).astype(np.float32)
     depth = rng.random((8, 12)).astype(np.float32)
@@ -415,8 +404,6 @@ def test_jittered_supersampling_is_stratified_and_deterministic():
 
 
 def test_jitter_offsets_are_uniform_and_independent():
-    from tissuerender.render.raster import jitter_offset
-
     uv = np.array([jitter_offset(7, j, i, 200) for j in range(100) for i in range(200)])
     assert uv.min() >= 0.0 and uv.max() < 1.0
     assert np.allclose(uv.mean(axis=0), 0.5, atol=0.01) and np.allclose(uv.var(axis=0), 1 / 12, rtol=0.03)

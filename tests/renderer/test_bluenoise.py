@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tissuerender.render import AreaLight, Camera, RenderObject, RenderSettings, render_frame
-from tissuerender.render import bluenoise
+from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+from tissuerender.renderer import bluenoise
 
 
 def _low_frequency_share(x):

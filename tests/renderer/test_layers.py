@@ -7,7 +7,10 @@ import pytest
 
 from materials import get_preset
 from materials.optics import MucosaLayers
-from tissuerender.render.brdf import layered_reflectance_cos, reflectance_cos, refracted_cos
+from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+from tissuerender.renderer.bsdf.microfacet import refracted_cos
+from tissuerender.renderer.bsdf.mucosa import layered_reflectance_cos
+from tissuerender.renderer.bsdf.tissue import reflectance_cos
 
 
 def _dirs(theta_o, k):
@@ -102,32 +105,28 @@ def test_colon_mucosa_preset_has_the_stack_and_its_base_colour():
 
 
 def test_colon_mucosa_texture_varies_across_the_surface_and_keeps_its_mean_colour():
-    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
-
     pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
     uv = pts[:, :2] * 1.0  # metres, like the box projection of procedural bodies
     slab = RenderObject(points=pts, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=uv,
                         material="colon_mucosa")
     cam = Camera(position=(0.0, 0.0, 0.08), look_at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg=60.0,
                  near=0.01, far=1.0, width=64, height=64)
-    out = render_frame([slab], cam, AreaLight(samples=1), RenderSettings(light_samples=1))
+    out = render_frame([slab], cam, AreaLight(samples=1), RenderSettings())
     albedo = out.gbuffer["albedo"]
     base = np.array(get_preset("colon_mucosa").optics.diffuse_albedo)
     assert albedo.std(axis=0).min() > 0.02  # mottle and vessels: not a flat colour
     assert np.allclose(albedo.mean(axis=0), base, rtol=0.15)  # but the preset's colour on average
-    again = render_frame([slab], cam, AreaLight(samples=1), RenderSettings(light_samples=1))
+    again = render_frame([slab], cam, AreaLight(samples=1), RenderSettings())
     assert np.array_equal(out.hdr, again.hdr)  # deterministic
 
 
 def test_mucosa_relief_bends_the_shading_normals_slightly():
-    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
-
     pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
     slab = RenderObject(points=pts, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=pts[:, :2] * 1.0,
                         material="colon_mucosa")
     cam = Camera(position=(0.0, 0.0, 0.08), look_at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg=60.0,
                  near=0.01, far=1.0, width=64, height=64)
-    n = render_frame([slab], cam, AreaLight(samples=1), RenderSettings(light_samples=1)).gbuffer["normal"]
+    n = render_frame([slab], cam, AreaLight(samples=1), RenderSettings()).gbuffer["normal"]
     tilt = np.degrees(np.arccos(np.clip(n[:, 2], -1, 1)))
     assert np.allclose(np.linalg.norm(n, axis=1), 1.0)
     assert 0.5 < tilt.mean() < 15.0 and tilt.max() < 45.0  # a fine relief, not a flat mirror, not noise
@@ -137,14 +136,12 @@ def test_mucosa_relief_bends_the_shading_normals_slightly():
 def test_mucosa_roughness_map_modulates_the_tissue_and_granular_roughness():
     """The bake's roughness map reaches shading: the G-buffer roughness follows the mottle within
     0.7 ... 1.3 x the preset's alpha and averages to it."""
-    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
-
     pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
     slab = RenderObject(points=pts, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=pts[:, :2] * 1.0,
                         material="colon_mucosa")
     cam = Camera(position=(0.0, 0.0, 0.08), look_at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg=60.0,
                  near=0.01, far=1.0, width=64, height=64)
-    alpha = render_frame([slab], cam, AreaLight(samples=1), RenderSettings(light_samples=1)).gbuffer["roughness"]
+    alpha = render_frame([slab], cam, AreaLight(samples=1), RenderSettings()).gbuffer["roughness"]
     preset = get_preset("colon_mucosa").optics.roughness
     factor = alpha / preset
     assert factor.min() >= 0.7 - 1e-9 and factor.max() <= 1.3 + 1e-9
@@ -156,8 +153,6 @@ def test_mucosa_roughness_map_modulates_the_tissue_and_granular_roughness():
 
 
 def test_layer_channels_exist_only_with_a_layered_material_and_hold_its_values():
-    from tissuerender.render.frame import AreaLight, Camera, RenderObject, RenderSettings, render_frame
-
     pts = np.array([[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]])
     cam = Camera(position=(0.0, 0.0, 0.08), look_at=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg=60.0,
                  near=0.01, far=1.0, width=32, height=32)
@@ -165,7 +160,7 @@ def test_layer_channels_exist_only_with_a_layered_material_and_hold_its_values()
     def render(material):
         slab = RenderObject(points=pts, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=None, uv=pts[:, :2],
                             material=material)
-        return render_frame([slab], cam, AreaLight(samples=1), RenderSettings(light_samples=1)).gbuffer
+        return render_frame([slab], cam, AreaLight(samples=1), RenderSettings()).gbuffer
 
     liver = render("liver")
     assert "layer_albedo" not in liver and "mucus_weight" not in liver

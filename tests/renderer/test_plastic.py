@@ -4,8 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tissuerender.render.plastic import (fresnel, internal_diffuse_reflectance, roughplastic_cos, smith_G1,
-                                         smooth_internal_reflectance, transmittance)
+from tissuerender.renderer.bsdf.microfacet import fresnel, ggx_D, smith_G1, smith_G1_oriented
+from tissuerender.renderer.bsdf.plastic import (_coating_albedo, internal_diffuse_reflectance, roughplastic_cos,
+                                                smooth_internal_reflectance, transmittance)
 
 
 def test_fresnel_limits():
@@ -40,8 +41,6 @@ def _facet_grid(n=600):
 def test_transmittance_table_is_the_interface_transmission_albedo(alpha, mu):
     """t(mu) against a deterministic quadrature of the same integral over a fine grid of facet normals,
     T = int (1 - F) G1(wi) G1(wt) D (wi.m) / mu dm, and bounded by what the coating does not reflect."""
-    from tissuerender.render.brdf import ggx_D
-    from tissuerender.render.plastic import _coating_albedo, smith_G1_oriented, transmittance
 
     eta = 1.49
     m, dw = _facet_grid()
@@ -71,7 +70,6 @@ def test_coating_lobe_albedo_matches_brute_force(alpha):
     f_cos = roughplastic_cos(n, wo, wi, np.zeros((k, 3)), alpha, eta)[:, 0]  # coating only
     albedo = np.mean(f_cos * np.pi / wi[:, 2])
     tol = 0.01 if alpha > 0.1 else 0.03  # a sharp lobe is noisy under cosine sampling
-    from tissuerender.render.plastic import _coating_albedo
 
     mus, table = _coating_albedo(alpha, eta)
     assert np.interp(mu, mus, table) == pytest.approx(albedo, abs=tol)

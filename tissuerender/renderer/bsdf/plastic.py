@@ -1,12 +1,25 @@
-"""The rough-plastic reference material: a GGX dielectric coating over a Lambertian base, as
-documented for Mitsuba 3's ``roughplastic`` BSDF (so any scene can be checked against an independent
-renderer, ``benchmarks/plastic_vs_mitsuba.py``).
+"""Rough plastic, the reference material: a GGX dielectric coating over a Lambertian base, as documented
+for Mitsuba 3's ``roughplastic`` BSDF (so any scene can be checked against an independent renderer,
+``benchmarks/plastic_vs_mitsuba.py``).
+
+=============  ==================  ==========  =========  ===================================================
+name           default             unit        range      equation
+=============  ==================  ==========  =========  ===================================================
+``albedo``     (0.55, 0.55, 0.58)  linear RGB  [0, 1]     ``rho`` of the Lambertian base
+``roughness``  0.25                --          [1e-3, 1]  GGX ``alpha`` of D (Walter 2007) and separable
+                                                          Smith G1 of the coating
+``ior``        1.49                --          [1, 3]     ``eta`` of the exact dielectric Fresnel F, of
+                                                          ``t(mu)`` and of ``F_dr``
+=============  ==================  ==========  =========  ===================================================
+
+Defaults are the ``plastic`` preset's (``materials.optics``; Mitsuba's polypropylene); the subsurface
+fields of the material are not used. The model::
 
     f cos = F(wo.h) D(h) G1(wi) G1(wo) / (4 cos_o)                                  (coating)
           + rho / (1 - F_dr) * t(cos_i) t(cos_o) / eta^2 * cos_i / pi                 (base)
 
 - D: GGX with alpha; G1: the separable Smith shadowing of GGX; F: exact unpolarised dielectric
-  Fresnel for the index ratio eta = n_coat / n_outside (1.49 by default, Mitsuba's polypropylene);
+  Fresnel for the index ratio eta = n_coat / n_outside;
 - t(mu): the light the rough coating transmits into the base, the transmission albedo of the GGX
   interface with the refracted direction masked too (Mitsuba 3's ``eval_transmittance``), tabulated
   per (alpha, eta) by quadrature; it is below 1 - E_spec(mu), the masking loss growing with alpha and
@@ -21,26 +34,9 @@ import functools
 
 import numpy as np
 
-from tissuerender.render.brdf import angle_cosines, ggx_D
-
-
-def fresnel(cos_i: np.ndarray, eta: float) -> np.ndarray:
-    """Exact unpolarised Fresnel reflectance for a ray at cosine cos_i hitting an interface of relative
-    index eta (transmitted-side / incident-side; eta < 1 allows total internal reflection)."""
-    c = np.clip(np.abs(cos_i), 0.0, 1.0)
-    sin_t2 = (1.0 - c * c) / (eta * eta)
-    tir = sin_t2 >= 1.0
-    cos_t = np.sqrt(np.maximum(1.0 - sin_t2, 0.0))
-    rs = (c - eta * cos_t) / np.maximum(c + eta * cos_t, 1e-300)
-    rp = (eta * c - cos_t) / np.maximum(eta * c + cos_t, 1e-300)
-    return np.where(tir, 1.0, 0.5 * (rs * rs + rp * rp))
-
-
-def smith_G1(cos: np.ndarray, alpha) -> np.ndarray:
-    """Smith's GGX masking G1 = 2 / (1 + sqrt(1 + alpha^2 tan^2 theta))."""
-    c = np.clip(cos, 1e-12, 1.0)
-    tan2 = (1.0 - c * c) / (c * c)
-    return 2.0 / (1.0 + np.sqrt(1.0 + alpha * alpha * tan2))
+from tissuerender.renderer.bsdf.microfacet import (angle_cosines, fresnel, ggx_D, smith_G1, smith_G1_oriented,
+                                                   visible_normals)
+from tissuerender.renderer.shade_kernel import KIND_PLASTIC
 
 
 def _coating(n_l, n_v, n_h, v_h, alpha, eta):
@@ -52,37 +48,6 @@ TABLE_SIZE = 64  # cosines 0 ... 1, evenly spaced (Mitsuba's grid for the same t
 
 def _table_cosines():
     return np.maximum(np.arange(TABLE_SIZE) / (TABLE_SIZE - 1.0), 1e-6)
-
-
-def visible_normals(wi: np.ndarray, alpha: float, n_samples: int) -> np.ndarray:
-    """n_samples^2 GGX microfacet normals drawn from the distribution of normals visible from ``wi``,
-    D_wi(m) = G1(wi) max(0, wi.m) D(m) / cos(theta_i), on a stratified grid (Heitz 2018: stretch the
-    view direction, sample the projected hemisphere, unstretch). Estimators over these normals stay
-    bounded; drawing from D(m)(n.m) instead weighs grazing facets by (wi.m)/(n.m), a heavy tail that a
-    65k-point grid under-samples (it read the transmission 0.5-0.9 % low)."""
-    vh = np.array([alpha * wi[0], alpha * wi[1], wi[2]])
-    vh /= np.linalg.norm(vh)
-    lensq = vh[0] * vh[0] + vh[1] * vh[1]
-    t1 = np.array([-vh[1], vh[0], 0.0]) / np.sqrt(lensq) if lensq > 0.0 else np.array([1.0, 0.0, 0.0])
-    t2 = np.cross(vh, t1)
-    g = (np.arange(n_samples) + 0.5) / n_samples
-    u1, u2 = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
-    r, phi = np.sqrt(u1), 2.0 * np.pi * u2
-    p1, p2 = r * np.cos(phi), r * np.sin(phi)
-    s = 0.5 * (1.0 + vh[2])
-    p2 = (1.0 - s) * np.sqrt(1.0 - p1 * p1) + s * p2
-    nh = p1[:, None] * t1 + p2[:, None] * t2 + np.sqrt(np.maximum(0.0, 1.0 - p1 * p1 - p2 * p2))[:, None] * vh
-    m = np.stack([alpha * nh[:, 0], alpha * nh[:, 1], np.maximum(nh[:, 2], 0.0)], axis=1)
-    return m / np.linalg.norm(m, axis=1, keepdims=True)
-
-
-def smith_G1_oriented(v: np.ndarray, m: np.ndarray, alpha: float) -> np.ndarray:
-    """Smith GGX masking of direction ``v`` (either side of the surface) by microfacet ``m``: zero when
-    v sees the back of the facet, ``(v.m) v_z <= 0``."""
-    vz2 = np.maximum(v[:, 2] * v[:, 2], 1e-300)
-    tan2 = np.maximum(1.0 - vz2, 0.0) / vz2
-    g = 2.0 / (1.0 + np.sqrt(1.0 + alpha * alpha * tan2))
-    return np.where(np.einsum("ij,ij->i", v, m) * v[:, 2] > 0.0, g, 0.0)
 
 
 @functools.lru_cache(maxsize=32)
@@ -151,3 +116,25 @@ def roughplastic_cos(n, wo, wi, albedo, alpha: float, eta: float):
     t = transmittance(n_l, alpha, eta) * transmittance(n_v, alpha, eta)
     base = albedo / (1.0 - internal_diffuse_reflectance(eta, alpha)) * (t * n_l / (np.pi * eta * eta))[:, None]
     return spec[:, None] + base
+
+
+class RoughPlastic:
+    """The rough-plastic BSDF of one material (see the module's parameter table)."""
+
+    name = "roughplastic"
+    kind = KIND_PLASTIC  # the shading kernel's code
+    subsurface = False  # no thickness term
+
+    def __init__(self, optics):
+        self.optics = optics
+
+    def eval_cos(self, points, idx, wi):
+        """``f cos`` (k, 3) at the G-buffer points ``idx`` towards the unit directions ``wi``."""
+        return roughplastic_cos(points.normal[idx], points.wo[idx], wi, points.albedo[idx], self.optics.roughness,
+                                self.optics.ior)
+
+    def kernel_row(self, mid, tables):
+        """The kernel's ``plastic`` row (eta, 1 / (1 - F_dr), row of its transmittance table) and the table."""
+        a, eta = max(float(self.optics.roughness), 1e-3), float(self.optics.ior)
+        tables["plastic"][mid] = (eta, 1.0 / (1.0 - internal_diffuse_reflectance(eta, a)), len(tables["plastic_t"]))
+        tables["plastic_t"].append(_coating_transmittance(a, eta)[1])

@@ -1,14 +1,13 @@
 """Ray queries for shadows, thickness and ambient occlusion: our numba BVH or Intel Embree.
 
-Both answer the same two questions with the same conventions (``tissuerender.render.bvh.BVH``):
+Both answer the same two questions with the same conventions (``tissuerender.renderer.bvh.BVH``):
 ``occluded(origins, targets, eps)`` (a triangle strictly between the two points, the segment shortened
 by ``eps`` at both ends) and ``closest_hit(origins, directions, t_max)``.
 
-Measured on the renderer benchmark frame (89k triangles, 696k shadow rays, 171k thickness rays, 2-core
-AMD EPYC; ``benchmarks/render_frame.py`` prints the split): the numba BVH (median split, 4 triangles per
-leaf) traces 2.0 M shadow rays/s per core, Embree (through the ``embreex`` wheel) 8.8 M/s, and Embree's
-closest hits are 3.5x faster; building is comparable (~0.1 s). So ``backend = "auto"`` takes Embree when
-``embreex`` imports and the numba BVH otherwise; both are tested to give the same answers.
+Embree (through the ``embreex`` wheel) traces shadow rays and closest hits several times faster per core
+than the numba BVH (median split, 4 triangles per leaf), and builds in comparable time
+(docs/renderer.md, "How fast, and why"). So ``backend = "auto"`` takes Embree when ``embreex`` imports
+and the numba BVH otherwise; both are tested to give the same answers.
 Embree works in float32: the offsets the renderer uses (2e-4 of the scene size) are far above its
 rounding at scene scale. Embree releases the GIL, so batches are split over ``numba.get_num_threads()``
 Python threads, the same thread budget the numba kernels use.
@@ -20,7 +19,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numba
 import numpy as np
 
-from tissuerender.render.bvh import BVH
+from tissuerender.renderer.bvh import BVH
 
 BACKENDS = ("auto", "embree", "numba")
 MIN_RAYS_PER_THREAD = 20_000
@@ -28,6 +27,7 @@ MIN_RAYS_PER_THREAD = 20_000
 
 def embree_available() -> bool:
     try:
+        # embreex is an optional fast path: imported only here and in EmbreeRays, the numba BVH is the fallback
         import embreex.rtcore_scene  # noqa: F401
     except ImportError:
         return False
@@ -40,6 +40,7 @@ class EmbreeRays:
     name = "embree"
 
     def __init__(self, points: np.ndarray, triangles: np.ndarray):
+        # optional fast path (see embree_available): lazy so the renderer imports without embreex
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh
 
@@ -49,7 +50,7 @@ class EmbreeRays:
         if len(self.triangles):
             # embreex copies element by element through Python indexing: float64 / int64 arrays (converted to
             # Embree's float32 / uint32 on the way, the same values as a NumPy cast) copy faster than float32
-            # / int32 ones (38 vs 56 ms for 82k triangles)
+            # / int32 ones (docs/renderer.md, "How fast, and why")
             TriangleMesh(self._scene, self.points, self.triangles)
             # Embree builds its BVH at the first query: one zero-length ray here, so the build is timed with
             # the construction (the renderer's "bvh" stage) rather than inside the first batch of rays

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tissuerender.render import AreaLight, Camera, RenderObject, RenderSettings, render_frame
-from tissuerender.render.frame import irradiance, light_frame, unshadowed_cosine_integral
-from tissuerender.render.shade_kernel import rect_cosine_integral
+from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame
+from tissuerender.renderer.light import irradiance, light_frame, unshadowed_cosine_integral
+from tissuerender.renderer.shade_kernel import rect_cosine_integral
+from tissuerender.scene.schema import Light
 
 CAM = Camera((0, -1, 1), (0, 0, 0), (0, 0, 1), 60, 0.01, 10, 8, 8)
 
@@ -155,8 +156,6 @@ def test_renderer_ratio_estimate_converges_to_the_monte_carlo_one(material):
 
 
 def test_ratio_estimator_options_are_validated():
-    from tissuerender.scene.schema import Light
-
     assert Light().estimator == "ratio"  # the default, chosen by benchmarks/render_convergence.py
     assert Light(reflection_cone=True).estimator == "mc"  # the cone's NumPy path has no ratio estimator
     with pytest.raises(ValueError, match="reflection_cone"):
@@ -205,8 +204,6 @@ def test_penumbra_samples_reshade_only_the_penumbra_and_lower_its_error(estimato
 
 
 def test_penumbra_samples_are_validated():
-    from tissuerender.scene.schema import Light
-
     assert Light(penumbra_samples=16).penumbra_samples == 16
     with pytest.raises(ValueError, match="reflection_cone"):
         Light(penumbra_samples=16, reflection_cone=True)

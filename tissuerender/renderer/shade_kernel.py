@@ -1,19 +1,20 @@
 """Direct lighting of the G-buffer in one numba pass: for every shading point, its m light samples,
 their shadow rays and the BRDF, with no per-sample arrays.
 
-It computes exactly what the NumPy path in :mod:`tissuerender.render.frame` computes for the same
-points (the same Hammersley points rotated per pixel, the same ``A / m`` weights, the same Cook–Torrance
-terms of :func:`tissuerender.render.brdf.reflectance_cos` and the same mucosa stack of
-:func:`tissuerender.render.brdf.layered_reflectance_cos`; tests compare the two to 1e-9), but:
+It computes exactly what the NumPy estimator in :mod:`tissuerender.renderer.direct` computes for the same
+points (the same Sobol' points rotated per pixel, the same ``A / m`` weights, the same BSDFs of
+:mod:`tissuerender.renderer.bsdf`: the tissue's Cook–Torrance terms, the mucosa stack and the rough
+plastic; tests compare the two to 1e-9), but:
 
 - parallel loops over pixels: ``light_rays`` writes one shadow ray per sample (zero-length where the
-  sample cannot contribute); the ray backend (:mod:`tissuerender.render.rays`, Embree or our BVH) answers
+  sample cannot contribute); the ray backend (:mod:`tissuerender.renderer.rays`, Embree or our BVH) answers
   them in one batch; ``shade_direct`` evaluates the BRDF of the visible samples;
 - a sample whose light cosine or surface cosine is zero contributes nothing, so its shadow ray has zero
   length (the NumPy path traces it and multiplies by zero).
 
 Materials are looked up per point through the G-buffer's material id in small per-material tables
-(tissue, mucosa stack, rough plastic with its coating-transmittance table). The reflection-cone
+(``bsdf.kernel_tables``: tissue, mucosa stack, rough plastic with its coating-transmittance table), the
+BSDF chosen by its integer code ``KIND_*`` (``bsdf.make_bsdf`` maps names to codes). The reflection-cone
 estimator stays on the NumPy path. The ratio estimator of the diffuse lobe (``light.estimator =
 "ratio"``, ``rect_cosine_integral``) exists only here.
 """
@@ -81,7 +82,7 @@ def _sobol2(n):
 
 @njit(cache=True, inline="always")
 def _sample_point(i, s, mi, rotation, stride, phase, centre, eu, ev):
-    """Light sample s of m for supersample ``phase[i]`` (frame.light_sample)."""
+    """Light sample s of m for supersample ``phase[i]`` (light.light_sample)."""
     p2 = 1
     while p2 < mi:
         p2 *= 2
@@ -196,8 +197,8 @@ def _segment(px, py, pz, nx, ny, nz, qx, qy, qz, ln, eps):
 
 @njit(cache=True, parallel=True)
 def cosine_integrals(pos, nrm, centre, ln, eu, ev, out):
-    """``rect_cosine_integral`` of every point (a pass of its own: inlined in the shading loop it cost
-    twice as much)."""
+    """``rect_cosine_integral`` of every point (a pass of its own: inlined in the shading loop it was
+    slower, docs/renderer.md, "How fast, and why")."""
     for i in prange(pos.shape[0]):
         out[i] = rect_cosine_integral(pos[i, 0], pos[i, 1], pos[i, 2], nrm[i, 0], nrm[i, 1], nrm[i, 2], centre, ln,
                                       eu, ev)
@@ -255,7 +256,7 @@ def _smith_G1(c, alpha):
 
 @njit(cache=True, inline="always")
 def _fresnel(c, eta):
-    """Exact unpolarised Fresnel for relative index eta (plastic.fresnel)."""
+    """Exact unpolarised Fresnel for relative index eta (bsdf.microfacet.fresnel)."""
     c = min(max(abs(c), 0.0), 1.0)
     sin_t2 = (1.0 - c * c) / (eta * eta)
     if sin_t2 >= 1.0:
@@ -268,7 +269,7 @@ def _fresnel(c, eta):
 
 @njit(cache=True, inline="always")
 def _table(t, row, mu):
-    """Linear interpolation in a 64-entry table over cosines 0 ... 1 (plastic.transmittance)."""
+    """Linear interpolation in a 64-entry table over cosines 0 ... 1 (bsdf.plastic.transmittance)."""
     n = t.shape[1]
     x = min(max(mu, 0.0), 1.0) * (n - 1)
     k = min(int(x), n - 2)
