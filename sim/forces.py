@@ -5,9 +5,9 @@ Internal forces come from the shared constitutive library (``force_model = "cons
 model's own nonlinear material) or from the linear FEM stiffness ``f_int = -K (x - X)``
 (``"linear_fem"``). Damping is Rayleigh, ``D = alpha M + beta K`` (settings ``rayleigh_alpha`` [1/s]
 and ``rayleigh_beta`` [s]). The constitutive forces run in the per-tet numba kernel of
-``sim.ebm_kernels`` (``kernel = "numba"``, default) for StVK and the (stable / anisotropic) Neo-Hookean
+``sim.integrators.ebm.kernels`` (``kernel = "numba"``, default) for StVK and the (stable / anisotropic) Neo-Hookean
 models with element pressure; ``kernel = "numpy"``, Valanis–Landel curves and average nodal pressure use
-``sim.constitutive`` (the reference the kernel is tested against). From ``ebm_kernels.PARALLEL_MIN_TETS`` tets with
+``sim.constitutive`` (the reference the kernel is tested against). From ``force_kernels.PARALLEL_MIN_TETS`` tets with
 more than one numba thread, the kernel's two-thread version (per-tet contributions, then a per-node gather in tet
 order: bit-identical forces for any thread count).
 """
@@ -16,8 +16,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from sim import constitutive, ebm_kernels, linear_fem
-from sim.integrators import SimulationDiverged
+from sim.constitutive import elastic, force_kernels, linear_fem, models
+from sim.constitutive.kernels import MATERIALS
+from sim.errors import SimulationDiverged
 
 FORCE_MODELS = ("constitutive", "linear_fem")
 KERNELS = ("numba", "numpy")
@@ -35,9 +36,9 @@ class Accelerations:
         if kernel not in KERNELS:
             raise ValueError(f"{who}: kernel must be one of {', '.join(KERNELS)}, found {kernel!r}")
         self._kernel_args = None
-        if (kernel == "numba" and self.force_model == "constitutive" and not constitutive.uses_anp(model)
-                and model.constitutive in ebm_kernels.MATERIALS):
-            name, mu, lam, eta, a0 = constitutive.model_params(model)
+        if (kernel == "numba" and self.force_model == "constitutive" and not models.uses_anp(model)
+                and model.constitutive in MATERIALS):
+            name, mu, lam, eta, a0 = models.model_params(model)
             m = model.n_tets
             self._kernel_args = (
                 np.ascontiguousarray(model.tets, dtype=np.int64), np.ascontiguousarray(model.Dm_inv, dtype=np.float64),
@@ -45,9 +46,9 @@ class Accelerations:
                 np.ascontiguousarray(lam, dtype=np.float64),
                 np.ascontiguousarray(np.zeros(m) if eta is None else eta, dtype=np.float64),
                 np.ascontiguousarray(np.zeros((m, 3)) if a0 is None else a0, dtype=np.float64),
-                ebm_kernels.MATERIALS[name], False, 1.0, np.zeros((1, 3, 3)), np.zeros(1))
-        # two threads on large meshes (bit-identical forces; sim.ebm_kernels.forces_and_energy_parallel)
-        self._large = model.n_tets >= ebm_kernels.PARALLEL_MIN_TETS
+                MATERIALS[name], False, 1.0, np.zeros((1, 3, 3)), np.zeros(1))
+        # two threads on large meshes (bit-identical forces; sim.force_kernels.forces_and_energy_parallel)
+        self._large = model.n_tets >= force_kernels.PARALLEL_MIN_TETS
         self._parallel_scratch = None
         self.alpha = float(settings.get("rayleigh_alpha", 0.0))
         self.beta = float(settings.get("rayleigh_beta", 0.0))
@@ -70,11 +71,11 @@ class Accelerations:
             x = np.ascontiguousarray(x, dtype=np.float64)
             threads = self._threads()
             if threads > 1:
-                ebm_kernels.forces_and_energy_parallel(x, f, *self._kernel_args, *self._scratch(), threads)
+                force_kernels.forces_and_energy_parallel(x, f, *self._kernel_args, *self._scratch(), threads)
             else:
-                ebm_kernels.forces_and_energy(x, f, *self._kernel_args)
+                force_kernels.forces_and_energy(x, f, *self._kernel_args)
         elif self.force_model == "constitutive":
-            f = constitutive.elastic_forces(self.model, x)
+            f = elastic.elastic_forces(self.model, x)
         else:
             f = -(self.K @ (x - self.model.X).ravel()).reshape(x.shape)
         f = f + self.f_ext - self.alpha * self.model.mass[:, None] * v
@@ -91,15 +92,15 @@ class Accelerations:
         """Incidence lists and per-tet scratch of the two-thread force kernel (built on first use)."""
         if self._parallel_scratch is None:
             m = self.model.n_tets
-            start, corner = ebm_kernels.node_incidences(self._tets, self.model.n_nodes)
+            start, corner = force_kernels.node_incidences(self._tets, self.model.n_nodes)
             self._parallel_scratch = (start, corner, np.empty((4 * m, 3)), np.empty(m), np.empty(m))
         return self._parallel_scratch
 
     def _count_inverted(self, x: np.ndarray) -> int:
         x = np.ascontiguousarray(x, dtype=np.float64)
         if self._threads() > 1:
-            return int(ebm_kernels.count_inverted_parallel(x, self._tets))
-        return int(ebm_kernels.count_inverted(x, self._tets))
+            return int(force_kernels.count_inverted_parallel(x, self._tets))
+        return int(force_kernels.count_inverted(x, self._tets))
 
     def start(self, x: np.ndarray) -> None:
         """Note how many elements are inverted in the first state the integrator steps from."""

@@ -92,7 +92,7 @@ class Model:
     gravity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     external_force: np.ndarray | None = None
     probes: list = field(default_factory=list)
-    pressure: str = "element"  # "anp": volumetric energy on nodal volumes (sim.anp), split models only
+    pressure: str = "element"  # "anp": volumetric energy on nodal volumes (sim.constitutive.anp), split models only
 
     @classmethod
     def from_mesh(

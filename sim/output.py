@@ -9,17 +9,17 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from sim import constitutive
+from sim.constitutive import models, tensor
 from sim.model import Model, State
 
 
 def write_vtu(path, model: Model, state: State) -> None:
-    name, mu, lam, eta, a0 = constitutive.model_params(model)
-    F = constitutive.deformation_gradients(state.x, model.tets, model.Dm_inv)
+    name, mu, lam, eta, a0 = models.model_params(model)
+    F = tensor.deformation_gradients(state.x, model.tets, model.Dm_inv)
     with np.errstate(invalid="ignore", divide="ignore"):
-        vl = constitutive.model_curves(model)
-        psi = constitutive.energy_density(name, F, mu, lam, eta, a0, vl=vl)
-        P = constitutive.first_piola(name, F, mu, lam, eta, a0, vl=vl)
+        vl = models.model_curves(model)
+        psi = models.energy_density(name, F, mu, lam, eta, a0, vl=vl)
+        P = models.first_piola(name, F, mu, lam, eta, a0, vl=vl)
     mesh = meshio.Mesh(
         state.x,
         [("tetra", model.tets)],

@@ -1,0 +1,37 @@
+"""Linear FEM matrices of a model: stiffness K (the Hessian of linear elasticity at rest, which is
+St Venant–Kirchhoff's at F = I), lumped mass M and Rayleigh damping D = alpha M + beta K.
+
+Zhang's CNN (§4.3.2.2) takes M, D and K "per Duan et al.", which the thesis does not reproduce; these
+are the standard linear-tet matrices it stands for (DESIGN.md).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.sparse as sp
+
+from sim.constitutive import elastic
+
+
+def stiffness_matrix(model) -> sp.csr_matrix:
+    """(3n, 3n) sparse linear-elastic stiffness at the rest shape [N/m]."""
+    linear = dataclasses.replace(model, constitutive="stvk", pressure="element")
+    H = elastic.element_hessians(linear, model.X, project=False)
+    idx = np.repeat(model.tets, 3, axis=1) * 3 + np.tile(np.arange(3), 4)[None, :]
+    rows = np.repeat(idx, 12, axis=1).ravel()
+    cols = np.tile(idx, (1, 12)).ravel()
+    n = 3 * model.n_nodes
+    return sp.coo_matrix((H.ravel(), (rows, cols)), shape=(n, n)).tocsr()
+
+
+def mass_vector(model) -> np.ndarray:
+    """Lumped masses per dof (3n,) [kg]."""
+    return np.repeat(model.mass, 3)
+
+
+def rayleigh_damping(model, alpha: float, beta: float, K: sp.csr_matrix | None = None) -> sp.csr_matrix:
+    """D = alpha M + beta K [N s/m]."""
+    K = stiffness_matrix(model) if K is None and beta != 0.0 else K
+    D = sp.diags(alpha * mass_vector(model))
+    return (D + beta * K).tocsr() if beta != 0.0 else D.tocsr()
