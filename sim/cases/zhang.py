@@ -1,4 +1,4 @@
-"""The quantitative cases of Zhang §5.3.2 (and the measurement lines DESIGN.md fixes), shared by the
+"""The quantitative cases of Zhang §5.3.2 (and the measurement lines of docs/design.md, "Zhang §5.3: cases, locking and measurement lines"), shared by the
 accuracy tests and the accuracy benchmark.
 
 - **Cylinder**: length 2 m along z, radius 0.5 m, left face (z = 0) fixed, every component of the

@@ -51,12 +51,6 @@ def energy(model, x) -> float:
     return float(np.sum(0.5 * V_a * kappa_a * (J_a - 1.0) ** 2))
 
 
-def element_pressure(model, x) -> np.ndarray:
-    """p_t = 1/4 sum over the tet's nodes of kappa_a (J_a - 1) [Pa]."""
-    _, kappa_a, J_a, _ = _nodal(model, x)
-    return (kappa_a * (J_a - 1.0))[model.tets].mean(axis=1)
-
-
 def _volume_gradients(model, F):
     """dv_t/dx per tet as (m, 4, 3): v_t = V_t det F_t, dv/dF = V_t cof F."""
     G = model.volume[:, None, None] * tensor.cofactor(F) @ np.swapaxes(model.Dm_inv, 1, 2)

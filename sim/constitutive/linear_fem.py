@@ -1,8 +1,9 @@
-"""Linear FEM matrices of a model: stiffness K (the Hessian of linear elasticity at rest, which is
-St Venant–Kirchhoff's at F = I), lumped mass M and Rayleigh damping D = alpha M + beta K.
+"""The linear FEM stiffness of a model: K, the Hessian of linear elasticity at rest (St Venant–Kirchhoff's
+at F = I). The lumped mass is ``Model.mass``; ``sim.forces`` applies Rayleigh damping ``D = alpha M + beta K``
+without assembling D.
 
 Zhang's CNN (§4.3.2.2) takes M, D and K "per Duan et al.", which the thesis does not reproduce; these
-are the standard linear-tet matrices it stands for (DESIGN.md).
+are the standard linear-tet matrices it stands for (docs/design.md, "Linear FEM matrices (Duan et al.)").
 """
 from __future__ import annotations
 
@@ -23,15 +24,3 @@ def stiffness_matrix(model) -> sp.csr_matrix:
     cols = np.tile(idx, (1, 12)).ravel()
     n = 3 * model.n_nodes
     return sp.coo_matrix((H.ravel(), (rows, cols)), shape=(n, n)).tocsr()
-
-
-def mass_vector(model) -> np.ndarray:
-    """Lumped masses per dof (3n,) [kg]."""
-    return np.repeat(model.mass, 3)
-
-
-def rayleigh_damping(model, alpha: float, beta: float, K: sp.csr_matrix | None = None) -> sp.csr_matrix:
-    """D = alpha M + beta K [N s/m]."""
-    K = stiffness_matrix(model) if K is None and beta != 0.0 else K
-    D = sp.diags(alpha * mass_vector(model))
-    return (D + beta * K).tocsr() if beta != 0.0 else D.tocsr()

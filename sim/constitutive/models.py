@@ -14,8 +14,8 @@ Models (``MODEL_CODES``):
   cof F``. Defined and smooth for inverted F.
 - ``valanis_landel`` — curve-defined energies of the principal stretches (Qian 4.15–4.20,
   ``sim.constitutive.valanis_landel``; the curves come as ``vl=``, from ``model.material_params``).
-- ``anisotropic_neo_hookean`` — ``neo_hookean`` plus a fibre term (Zhang eq. 5.37) (Zhang eq. 5.37, DESIGN.md's fix of
-  5.38): ``Psi_f = eta/2 (I4bar - 1)^2``, ``I4bar = J^(-2/3) a.C a``; default ``eta = 2 mu``.
+- ``anisotropic_neo_hookean`` — ``neo_hookean`` plus a fibre term (Zhang eq. 5.37, with 5.38 corrected: docs/design.md,
+  "Zhang 5.37/5.38: fibre stress"): ``Psi_f = eta/2 (I4bar - 1)^2``, ``I4bar = J^(-2/3) a.C a``; default ``eta = 2 mu``.
 
 With ``volumetric=False`` the split models return only their isochoric part (the volumetric term is
 then evaluated on nodal volumes: average nodal pressure, ``sim.constitutive.anp``).
@@ -66,6 +66,40 @@ def energy_density(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = 
             psi = psi + 0.5 * eta * (Jm23 * I4 - 1.0) ** 2
         return psi
     raise KeyError(f"unknown constitutive model {name!r}; expected one of {', '.join(MODEL_CODES)}")
+
+
+def energy_density_h(name: str, F, mu, lam, eta=None, a0=None, vl=None):
+    """Psi per tet [J/m^3] for the EBM multiplier, evaluated from the displacement gradient H = F - I.
+
+    The same energies as ``sim.constitutive.models.energy_density``, written so that their rounding error scales
+    with the strain: 5.7 divides W_k by |dW_k/dx|^2 and both vanish at rest, so the textbook forms'
+    absolute error of about eps mu turns elements at rest to rounding into noise-driven increments
+    (docs/ebm.md). ``J - 1 = tr H + I2(H) + det H``, ``I1 - 3 = 2 tr H + H:H``,
+    ``J^(-2/3) - 1 = (y - 1)(y + 1)`` with ``y = J^(-1/3)`` and ``y - 1 = -j / (J (y^2 + y + 1))``, j = J - 1;
+    NaN for J <= 0 in the split models.
+    """
+    if name not in ("neo_hookean", "anisotropic_neo_hookean", "stable_neo_hookean"):
+        return energy_density(name, F, mu, lam, eta, a0, vl=vl)
+    H = F - np.eye(3)
+    tr = np.einsum("mii->m", H)
+    HH = np.einsum("mij,mij->m", H, H)
+    I2 = 0.5 * (tr * tr - np.einsum("mij,mji->m", H, H))
+    detH = det(H)
+    j = tr + I2 + detH
+    if name == "stable_neo_hookean":
+        return 0.5 * mu * (HH - 2.0 * I2 - 2.0 * detH) + 0.5 * lam * j * j
+    J = 1.0 + j
+    with np.errstate(invalid="ignore", divide="ignore"):
+        y = np.where(J > 0.0, 1.0 / np.cbrt(J), np.nan)  # J^(-1/3)
+        m = -j / (J * (y * y + y + 1.0)) * (y + 1.0)  # J^(-2/3) - 1 = (y - 1)(y + 1), y - 1 = -j / (J (y^2 + y + 1))
+    d = 2.0 * tr + HH
+    psi = 0.5 * mu * (3.0 * m + d + m * d) + 0.5 * bulk_modulus(mu, lam) * j * j
+    if name == "anisotropic_neo_hookean":
+        Ha = np.einsum("mij,mj->mi", H, a0)
+        q = 2.0 * np.einsum("mi,mi->m", a0, Ha) + np.einsum("mi,mi->m", Ha, Ha) + (np.einsum("mi,mi->m", a0, a0) - 1.0)
+        dbar = m * (1.0 + q) + q
+        psi = psi + 0.5 * eta * dbar * dbar
+    return psi
 
 
 def first_piola(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = True, vl=None):

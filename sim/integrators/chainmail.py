@@ -31,19 +31,45 @@ prescribed displacements of a probe or a ramp instead). Velocities are the posit
 Probes (``model.probes``) are input displacements too: nodes inside a tool are pushed to its surface
 before the sweeps and after each one.
 
-Settings: ``alpha`` (default 0.1; the thesis sets it "according to the spring stiffness"), or the
-stretch ratios ``strain_min`` / ``strain_max`` (the scene's keys; they override alpha),
-``iterations`` (sweeps per step, default 500), ``tolerance`` (default 1e-4), ``substeps``.
+| name | default | unit | range | equation |
+|---|---|---|---|---|
+| ``strain_min`` | none: ``1 - alpha`` = 0.8 | – | (0, 1] | 3.53, l_min = strain_min l0 |
+| ``strain_max`` | none: ``1 + alpha`` = 1.2 | – | [1, 10] | 3.53, l_max = strain_max l0 |
+| ``tolerance`` | 1e-4 | – | (0, 0.1] | largest link excess over l0 that ends the sweeps |
+| ``alpha`` | 0.2 | – | (0, 1) | 3.53 (the thesis sets it "according to the spring stiffness") |
+| ``iterations`` | 500 | – | >= 1 | sweeps per substep |
+| ``substeps`` | 1 | – | >= 1 | h = dt / substeps |
+
+``ChainMailSceneSettings`` is the scene's ``[simulation.cnn_chainmail]`` table; ``ChainMailSettings`` adds
+``alpha`` and what the scene sets in ``[simulation]`` (``substeps``, ``iterations``).
 """
 from __future__ import annotations
 
 import numpy as np
+from pydantic import Field
 
 from sim.errors import SimulationDiverged
 from sim.model import Model, State
 from sim.probe import resolve_contact
+from sim.settings import Settings
 
 LOCAL_EDGES = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
+
+
+class ChainMailSceneSettings(Settings):
+    """The scene's ``[simulation.cnn_chainmail]`` table."""
+
+    strain_min: float | None = Field(None, gt=0.0, le=1.0, description="shortest link over its rest length; none: 1 - alpha")
+    strain_max: float | None = Field(None, ge=1.0, le=10.0, description="longest link over its rest length; none: 1 + alpha")
+    tolerance: float = Field(1e-4, gt=0.0, le=0.1, description="largest link excess over l0 that ends the sweeps [-]")
+
+
+class ChainMailSettings(ChainMailSceneSettings):
+    """Every parameter of the ``cnn_chainmail`` integrator (the table in the module docstring)."""
+
+    alpha: float = Field(0.2, gt=0.0, lt=1.0, description="symmetric strain limit of eq. 3.53 [-]")
+    iterations: int = Field(500, ge=1, le=10000, description="sweeps per substep [-]")
+    substeps: int = Field(1, ge=1, le=1000, description="substeps per step [-]")
 
 
 def mesh_edges(tets: np.ndarray) -> np.ndarray:
@@ -73,23 +99,15 @@ def mu(u: np.ndarray, l_min: np.ndarray, l_max: np.ndarray) -> np.ndarray:
 class CNNChainMail:
     name = "cnn_chainmail"
 
-    def __init__(self, model: Model, settings: dict):
+    def __init__(self, model: Model, settings: ChainMailSettings | dict | None = None):
+        settings = ChainMailSettings.of(settings)
+        self.settings = settings
         self.model = model
-        self.alpha = float(settings.get("alpha", 0.1))
-        if not 0.0 < self.alpha < 1.0:
-            raise ValueError(f"cnn_chainmail: alpha (the strain limit of eq. 3.53) must be in (0, 1), found {self.alpha}")
-        lo, hi = settings.get("strain_min"), settings.get("strain_max")
-        lo = None if lo is None else float(lo)
-        hi = None if hi is None else float(hi)
-        if (lo is not None and not 0.0 < lo <= 1.0) or (hi is not None and not hi >= 1.0):
-            raise ValueError(f"cnn_chainmail: strain_min must be in (0, 1] and strain_max >= 1 (stretch ratios of "
-                             f"eq. 3.53), found {lo}, {hi}")
-        self.iterations = int(settings.get("iterations", 500))
-        self.tolerance = float(settings.get("tolerance", 1e-4))
-        self.substeps = int(settings.get("substeps", 1))
-        if self.iterations < 1 or self.substeps < 1 or not self.tolerance > 0.0:
-            raise ValueError(f"cnn_chainmail: iterations and substeps must be >= 1 and tolerance > 0, found "
-                             f"{self.iterations}, {self.substeps}, {self.tolerance}")
+        self.alpha = settings.alpha
+        lo, hi = settings.strain_min, settings.strain_max
+        self.iterations = settings.iterations
+        self.tolerance = settings.tolerance
+        self.substeps = settings.substeps
         f = model.nodal_external_force()
         if np.abs(f).max(initial=0.0) > 0.0:
             raise ValueError("cnn_chainmail: the ChainMail is geometric and has no forces, but the model has external "

@@ -4,23 +4,46 @@
 velocity; symplectic Euler would be stable where this one is not). Stable only for h below about
 the explicit critical step ``l_min / c`` (Zhang eq. 5.12); beyond it, it diverges, and the integrator
 raises :class:`SimulationDiverged` instead of returning NaN.
-Settings: ``substeps``, ``force_model``, ``rayleigh_alpha``, ``rayleigh_beta`` (see ``sim.forces``);
-``iterations`` is ignored (forward Euler has no inner iterations).
+
+| name | default | unit | range | equation |
+|---|---|---|---|---|
+| ``substeps`` | 1 | – | >= 1 | h = dt / substeps |
+| ``iterations`` | 1 | – | >= 1 | ignored (forward Euler has no inner iterations) |
+| ``force_model`` | "constitutive" | – | "constitutive", "linear_fem" | f_int (``sim.forces``) |
+| ``rayleigh_alpha`` | 0 | 1/s | [0, 1e3] | D = alpha M + beta K |
+| ``rayleigh_beta`` | 0 | s | [0, 1] | D = alpha M + beta K |
+| ``kernel`` | "numba" | – | "numba", "numpy" | constitutive forces |
+
+``ExplicitSceneSettings`` is the scene's ``[simulation.explicit]`` table; ``ExplicitSettings`` adds ``substeps`` and
+``iterations`` (set from ``[simulation]``) and the kernel.
 """
 from __future__ import annotations
 
-from sim.forces import Accelerations
+from pydantic import Field
+
+from sim.forces import Accelerations, ForceKernel, ForceSettings
 from sim.model import Model, State
+
+
+class ExplicitSceneSettings(ForceSettings):
+    """The scene's ``[simulation.explicit]`` table."""
+
+
+class ExplicitSettings(ExplicitSceneSettings, ForceKernel):
+    """Every parameter of the ``explicit`` integrator (the table in the module docstring)."""
+
+    substeps: int = Field(1, ge=1, le=1000, description="substeps per step [-]")
+    iterations: int = Field(1, ge=1, le=10000, description="ignored: forward Euler has no inner iterations")
 
 
 class ExplicitEuler:
     name = "explicit"
 
-    def __init__(self, model: Model, settings: dict):
+    def __init__(self, model: Model, settings: ExplicitSettings | dict | None = None):
+        settings = ExplicitSettings.of(settings)
+        self.settings = settings
         self.model = model
-        self.substeps = int(settings.get("substeps", 1))
-        if self.substeps < 1:
-            raise ValueError(f"explicit: substeps must be a positive integer, found {self.substeps}")
+        self.substeps = settings.substeps
         self.accel = Accelerations(model, settings, "explicit")
         self.kinematic = model.kinematic_mask()
 

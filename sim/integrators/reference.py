@@ -11,10 +11,25 @@ with the Hessian assembled from element Hessians (``sim.constitutive``) plus ``M
 one when its Newton step descends, else the PSD-projected one (per-element eigenvalue clamping). Converged when
 ``|grad Phi| <= tol * (|grad Phi(x_0)| + |f_ext| + |reactions at x_0| + 1e-12)`` over the free dofs
 (default ``tol = 1e-8``). It exists to measure the other integrators, not to be fast.
+
+| name | default | unit | range | equation |
+|---|---|---|---|---|
+| ``mode`` | "dynamic" | – | "dynamic", "quasistatic" | Phi above |
+| ``tol`` | 1e-8 | – | (0, 1e-2] | relative gradient norm at convergence |
+| ``max_newton`` | 50 | – | [1, 1000] | Newton iterations per solve |
+| ``anp`` | false | – | bool | average nodal pressure (``sim.constitutive.anp``) |
+| ``load_steps`` | 1 | – | >= 1 | quasi-static load increments per step |
+| ``substeps``, ``iterations`` | 1 | – | >= 1 | ignored (set from the scene's ``[simulation]``) |
+
+``ReferenceSceneSettings`` is the scene's ``[simulation.reference]`` table; ``ReferenceSettings`` adds
+``load_steps`` and accepts (and ignores) the scene's ``substeps`` and ``iterations``.
 """
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
+from pydantic import Field
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
@@ -22,20 +37,40 @@ from sim.constitutive import anp, elastic, models, tensor
 from sim.constitutive.prony import PronyHistory
 from sim.errors import SimulationDiverged
 from sim.model import Model, State
+from sim.settings import Settings
+
+MODES = ("dynamic", "quasistatic")
+
+
+class ReferenceSceneSettings(Settings):
+    """The scene's ``[simulation.reference]`` table."""
+
+    mode: Literal[MODES] = Field("dynamic", description="backward Euler, or quasi-static equilibria")  # type: ignore[valid-type]
+    tol: float = Field(1e-8, gt=0.0, le=1e-2, description="Newton tolerance on the relative gradient [-]")
+    max_newton: int = Field(50, ge=1, le=1000, description="Newton iterations per solve [-]")
+    anp: bool = Field(False, description="average nodal pressure against volumetric locking")
+
+
+class ReferenceSettings(ReferenceSceneSettings):
+    """Every parameter of the ``reference`` integrator (the table in the module docstring)."""
+
+    load_steps: int = Field(1, ge=1, le=10000, description="quasi-static load increments per step [-]")
+    substeps: int = Field(1, ge=1, le=1000, description="ignored: Newton solves each step whole")
+    iterations: int = Field(1, ge=1, le=10000, description="ignored: see max_newton")
 
 
 class ReferenceIntegrator:
     name = "reference"
 
-    def __init__(self, model: Model, settings: dict):
+    def __init__(self, model: Model, settings: ReferenceSettings | dict | None = None):
+        settings = ReferenceSettings.of(settings)
+        self.settings = settings
         self.model = model
-        self.mode = settings.get("mode", "dynamic")
-        if self.mode not in ("dynamic", "quasistatic"):
-            raise ValueError(f"reference mode must be 'dynamic' or 'quasistatic', found {self.mode!r}")
-        self.tol = float(settings.get("tol", 1e-8))
-        self.max_newton = int(settings.get("max_newton", 50))
-        self.load_steps = int(settings.get("load_steps", 1))
-        if settings.get("anp", False):
+        self.mode = settings.mode
+        self.tol = settings.tol
+        self.max_newton = settings.max_newton
+        self.load_steps = settings.load_steps
+        if settings.anp:
             anp.check_model(model)
             model.pressure = "anp"
         prony = model.material_params.get("prony")

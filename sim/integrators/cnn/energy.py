@@ -25,13 +25,13 @@ Equations (Zhang ch. 4, with the readings documented in docs/integrators-zhang.m
   edge vector, ``psi = phi . d`` the potential along the load direction d, and ``w_ij`` the edge's share of
   volume (``sum_T V_T / 6`` over the tets holding the edge) so that f is in newtons. Zhang writes
   ``|phi_j - phi_i|``, which always pulls towards the neighbour and is undefined for a vector phi; we use
-  the signed difference (DESIGN.md). With 4.2's sign convention the steady potential is lowest at the
+  the signed difference (docs/design.md, "Zhang 4.28-4.30: CNN potential forces"). With 4.2's sign convention the steady potential is lowest at the
   source, so these forces point away from it. The gain g is fixed once from the steady potential so
   that the propagated load's resultant along d equals the total contact force: energy propagation
   redistributes the load, it does not create it.
 
-Settings (``force_model = "energy"`` in ``cnn``): ``energy_rho`` [m^2/s] constitutive (diffusion)
-coefficient, default 1.0; ``kernel`` = ``"numba"`` (default) or ``"numpy"`` (the reference below).
+Settings (``force_model = "energy"`` in ``cnn``; ``sim.integrators.cnn.settings``): ``energy_rho``,
+``energy_gradient`` and ``kernel`` (``"numpy"``: the reference below).
 
 Speed (``kernel = "numba"``): the potential's ODE is linear with constant templates, so the n forward-Euler
 sub-steps of one call are evaluated in closed form on the eigenmodes of the free cells' template
@@ -48,6 +48,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from sim.integrators.cnn import kernels
+from sim.integrators.cnn.settings import CNNSettings
 
 # the six edges of a tet as (i, j, k, l): edge i-j, the two other vertices k and l
 TET_EDGES = np.array([(0, 1, 2, 3), (0, 2, 1, 3), (0, 3, 1, 2), (1, 2, 0, 3), (1, 3, 0, 2), (2, 3, 0, 1)])
@@ -127,9 +128,7 @@ def edge_table(tets: np.ndarray, volume: np.ndarray, S: np.ndarray):
     return edges, w, S_edge
 
 
-GRADIENTS = ("median_dual", "edge")
-KERNELS = ("numba", "numpy")
-MODAL_MAX_CELLS = 3000  # dense eigenbasis up to this many free cells (72 MB, eigh ~ seconds); sub-steps above
+MODAL_MAX_CELLS = 3000  # dense eigenbasis up to this many free cells (72 MB); sub-steps above
 
 
 class ModalPropagation:
@@ -187,18 +186,12 @@ class ModalPropagation:
 class EnergyPropagation:
     """The energy-propagation force model of one Model (see module docstring)."""
 
-    def __init__(self, model, settings: dict):
+    def __init__(self, model, settings: CNNSettings | dict | None = None):
+        settings = CNNSettings.of(settings)
         self.model = model
-        self.rho = float(settings.get("energy_rho", 1.0))
-        if not self.rho > 0.0:
-            raise ValueError(f"cnn: energy_rho (the Poisson constitutive coefficient, m^2/s) must be positive, "
-                             f"found {self.rho}")
-        self.gradient = settings.get("energy_gradient", "median_dual")
-        if self.gradient not in GRADIENTS:
-            raise ValueError(f"cnn: energy_gradient must be one of {', '.join(GRADIENTS)}, found {self.gradient!r}")
-        self.kernel = settings.get("kernel", "numba")
-        if self.kernel not in KERNELS:
-            raise ValueError(f"cnn: kernel must be one of {', '.join(KERNELS)}, found {self.kernel!r}")
+        self.rho = settings.energy_rho
+        self.gradient = settings.energy_gradient
+        self.kernel = settings.kernel
         X = model.X
         self.L, self.omega = flux_matrix(X, model.tets, self.rho)
         self.fixed = model.kinematic_mask()

@@ -6,7 +6,6 @@ code in ``sim.integrators.cnn.energy`` (``kernel = "numpy"``) is the reference t
 """
 from __future__ import annotations
 
-import numpy as np
 from numba import njit
 
 

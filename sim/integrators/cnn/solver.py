@@ -16,8 +16,8 @@ With K = infinity both reduce to ``sim.integrators.explicit``. At large h the sa
 where forward Euler diverges, but the motion settles into a bounded oscillation of amplitude about
 K h rather than decaying (measured on the mass–spring–damper: error floor 0.14/0.11/0.055 m for
 K = 5/4/2 with state saturation, 0.23/0.19/0.12 m with output saturation, at h = 0.01 s).
-Settings: ``K`` [m/s] (default 4), ``saturation``, ``substeps``, ``force_model``, ``rayleigh_alpha``,
-``rayleigh_beta`` (see ``sim.forces``). ``iterations`` is ignored (the CNN has no inner iterations).
+Parameters: :class:`sim.integrators.cnn.settings.CNNSettings` (the table of its module docstring);
+``iterations`` is ignored (the CNN has no inner iterations).
 
 ``force_model = "energy"`` (Zhang 4.4–4.30, ``sim.integrators.cnn.energy``): the contact forces (the model's constant
 nodal forces) become a Poisson energy source whose three-layer potential evolves with the simulation time
@@ -31,10 +31,8 @@ import numpy as np
 
 from sim.forces import Accelerations
 from sim.integrators.cnn.energy import EnergyPropagation
+from sim.integrators.cnn.settings import CNNSettings
 from sim.model import Model, State
-
-SATURATIONS = ("state", "output")
-
 
 def saturate(v, K: float):
     """Zhang eq. 4.33: f(v) = (|v + K| - |v - K|) / 2, i.e. v clamped to [-K, K]. Evaluated as the clamp:
@@ -46,21 +44,17 @@ def saturate(v, K: float):
 class CNN:
     name = "cnn"
 
-    def __init__(self, model: Model, settings: dict):
+    def __init__(self, model: Model, settings: CNNSettings | dict | None = None):
+        settings = CNNSettings.of(settings)
+        self.settings = settings
         self.model = model
-        self.substeps = int(settings.get("substeps", 1))
-        if self.substeps < 1:
-            raise ValueError(f"cnn: substeps must be a positive integer, found {self.substeps}")
-        self.K = float(settings.get("K", 4.0))
-        if not self.K > 0.0:
-            raise ValueError(f"cnn: saturation bound K must be positive [m/s], found {self.K}")
-        self.saturation = settings.get("saturation", "state")
-        if self.saturation not in SATURATIONS:
-            raise ValueError(f"cnn: saturation must be one of {', '.join(SATURATIONS)}, found {self.saturation!r}")
+        self.substeps = settings.substeps
+        self.K = settings.K
+        self.saturation = settings.saturation
         self.energy = None
-        if settings.get("force_model") == "energy":
+        if settings.force_model == "energy":
             self.energy = EnergyPropagation(model, settings)
-            settings = {**settings, "force_model": "linear_fem"}
+            settings = settings.model_copy(update={"force_model": "linear_fem"})
             inv_m = model.inverse_mass()
             self._contact_accel = np.zeros_like(model.X)
             self._contact_accel[self.energy.contact] = self.energy.contact_force

@@ -24,18 +24,16 @@ and Psi by their relaxed values (5.29–5.32, ``sim.constitutive.prony``); the h
 The relative energy difference ``RED = |W_ext - W_strain| / W_ext`` is recorded per step in
 ``red_history``: W_ext is the work done on the body by the reactions at prescribed nodes and by
 external forces (trapezoidal in time), W_strain the stored strain energy.
-Settings: ``iterations`` (default 100), ``substeps``, ``update`` ("average" | "sum"), ``kernel``
-("blocked", default: each substep in one compiled call with the per-tet work vectorised across tets,
-``sim.integrators.ebm.blocked``; "numba": the scalar per-tet kernels of ``sim.integrators.ebm.kernels``, which the blocked kernel is
-tested against to 1e-10; "numpy": the vectorised NumPy reference below, which the scalar kernels are
-tested against to 1e-10). Valanis–Landel materials always take the NumPy path (their curves are not
-compiled). ``precision`` ("float64", default | "float32"): with the blocked kernel, the per-tet lane loops (sweeps
-and energy accounting) in float32 (16 tets per AVX-512 register; Neo-Hookean and anisotropic Neo-Hookean without
-Prony only; node sums in float64 over float32 pairs; positions, prediction and velocities stay float64).
-Its deviation from float64 is measured in docs/ebm.md: as large as a 1e-13 m perturbation of a float64 run on the
-Zhang 5.3.2 cases, so not the default.
-With more than one numba thread, meshes of ``sim.integrators.ebm.blocked.PARALLEL_MIN_TETS`` tets or more run the blocked sweeps on
-all threads, bit-identical to one thread (docs/ebm.md, "Two threads").
+Parameters: :class:`sim.integrators.ebm.settings.EBMSettings` (the table of its module docstring). ``kernel``:
+"blocked" (default: each substep in one compiled call with the per-tet work vectorised across tets,
+``sim.integrators.ebm.blocked_step``); "numba": the scalar per-tet kernel of ``sim.integrators.ebm.kernels``, which
+the blocked kernel is tested against to 1e-10; "numpy": the vectorised NumPy reference below, which the scalar kernel
+is tested against to 1e-10. Valanis–Landel materials always take the NumPy path (their curves are not compiled).
+``precision = "float32"``: with the blocked kernel, the per-tet lane loops (sweeps and energy accounting) in float32
+(``sim.integrators.ebm.blocked_f32``; Neo-Hookean and anisotropic Neo-Hookean without Prony only); its deviation from
+float64 is measured in docs/ebm.md: as large as a 1e-13 m perturbation of a float64 run on the Zhang 5.3.2 cases, so
+not the default. With more than one numba thread, meshes of ``sim.integrators.ebm.blocked.PARALLEL_MIN_TETS`` tets or
+more run the blocked sweeps on all threads, bit-identical to one thread (docs/ebm.md, "Two threads").
 """
 from __future__ import annotations
 
@@ -47,53 +45,22 @@ from sim.constitutive.kernels import MATERIALS
 from sim.constitutive.prony import PronyHistory
 from sim.errors import SimulationDiverged
 from sim.integrators.ebm import blocked as ebm_blocked
+from sim.integrators.ebm import blocked_step
 from sim.integrators.ebm import kernels as ebm_kernels
+from sim.integrators.ebm.settings import EBMSettings
 from sim.model import Model, State
 
-UPDATES = ("average", "sum")
 
 
-def energy_density(name: str, F, mu, lam, eta=None, a0=None, vl=None):
-    """Psi per tet [J/m^3] for the EBM multiplier, evaluated from the displacement gradient H = F - I.
-
-    The same energies as ``sim.constitutive.models.energy_density``, written so that their rounding error scales
-    with the strain: 5.7 divides W_k by |dW_k/dx|^2 and both vanish at rest, so the textbook forms'
-    absolute error of about eps mu turns elements at rest to rounding into noise-driven increments
-    (docs/ebm.md). ``J - 1 = tr H + I2(H) + det H``, ``I1 - 3 = 2 tr H + H:H``,
-    ``J^(-2/3) - 1 = (y - 1)(y + 1)`` with ``y = J^(-1/3)`` and ``y - 1 = -j / (J (y^2 + y + 1))``, j = J - 1;
-    NaN for J <= 0 in the split models.
-    """
-    if name not in ("neo_hookean", "anisotropic_neo_hookean", "stable_neo_hookean"):
-        return models.energy_density(name, F, mu, lam, eta, a0, vl=vl)
-    H = F - np.eye(3)
-    tr = np.einsum("mii->m", H)
-    HH = np.einsum("mij,mij->m", H, H)
-    I2 = 0.5 * (tr * tr - np.einsum("mij,mji->m", H, H))
-    detH = tensor.det(H)
-    j = tr + I2 + detH
-    if name == "stable_neo_hookean":
-        return 0.5 * mu * (HH - 2.0 * I2 - 2.0 * detH) + 0.5 * lam * j * j
-    J = 1.0 + j
-    with np.errstate(invalid="ignore", divide="ignore"):
-        y = np.where(J > 0.0, 1.0 / np.cbrt(J), np.nan)  # J^(-1/3)
-        m = -j / (J * (y * y + y + 1.0)) * (y + 1.0)  # J^(-2/3) - 1 = (y - 1)(y + 1), y - 1 = -j / (J (y^2 + y + 1))
-    d = 2.0 * tr + HH
-    psi = 0.5 * mu * (3.0 * m + d + m * d) + 0.5 * models.bulk_modulus(mu, lam) * j * j
-    if name == "anisotropic_neo_hookean":
-        Ha = np.einsum("mij,mj->mi", H, a0)
-        q = 2.0 * np.einsum("mi,mi->m", a0, Ha) + np.einsum("mi,mi->m", Ha, Ha) + (np.einsum("mi,mi->m", a0, a0) - 1.0)
-        dbar = m * (1.0 + q) + q
-        psi = psi + 0.5 * eta * dbar * dbar
-    return psi
-KERNELS = ("blocked", "numba", "numpy")
-PRECISIONS = ("float64", "float32")
 MAX_STRETCH = 10.0  # |F|_F / sqrt(3) above this after a step: no tissue does that, the iterations failed
 
 
 class EBM:
     name = "ebm"
 
-    def __init__(self, model: Model, settings: dict):
+    def __init__(self, model: Model, settings: EBMSettings | dict | None = None):
+        settings = EBMSettings.of(settings)
+        self.settings = settings
         if models.uses_anp(model):
             raise ValueError("ebm: average nodal pressure is not supported (element energies only)")
         E_ratio = float(model.E.max() / model.E.min())
@@ -103,19 +70,11 @@ class EBM:
                 f"increments (Zhang 5.7-5.8) do not depend on an element's stiffness scale (W_k and dW_k/dx scale "
                 f"together), so EBM cannot represent heterogeneous stiffness; use xpbd or reference")
         self.model = model
-        self.iterations = int(settings.get("iterations", 100))
-        self.substeps = int(settings.get("substeps", 1))
-        self.update = settings.get("update", "average")
-        if self.update not in UPDATES:
-            raise ValueError(f"ebm: update must be one of {', '.join(UPDATES)}, found {self.update!r}")
-        self.kernel = settings.get("kernel", "blocked")
-        if self.kernel not in KERNELS:
-            raise ValueError(f"ebm: kernel must be one of {', '.join(KERNELS)}, found {self.kernel!r}")
-        if model.constitutive not in MATERIALS:
-            self.kernel = "numpy"
-        self.precision = settings.get("precision", "float64")
-        if self.precision not in PRECISIONS:
-            raise ValueError(f"ebm: precision must be one of {', '.join(PRECISIONS)}, found {self.precision!r}")
+        self.iterations = settings.iterations
+        self.substeps = settings.substeps
+        self.update = settings.update
+        self.kernel = settings.kernel if model.constitutive in MATERIALS else "numpy"
+        self.precision = settings.precision
         if self.precision == "float32" and (self.kernel != "blocked" or model.material_params.get("prony")
                                             or model.constitutive not in ("neo_hookean", "anisotropic_neo_hookean")):
             raise ValueError("ebm: precision float32 needs kernel blocked and neo_hookean or anisotropic_neo_hookean "
@@ -167,17 +126,11 @@ class EBM:
         self._out = np.zeros((n_blocks, ebm_blocked.N_OUT * ebm_blocked.LANES))
         self._corners = np.zeros((n_blocks, ebm_blocked.N_OUT * ebm_blocked.LANES))
         self._relax_blocks = np.zeros((1, ebm_blocked.N_RELAX * ebm_blocked.LANES))
-        # kinematic targets (Model.kinematic_targets): X, or X + fraction(t) displacement of the last prescribed
-        # group that lists the node
-        group = np.full(m.n_nodes, -1, np.int64)
-        displacement = np.zeros((m.n_nodes, 3))
-        for k, p in enumerate(m.prescribed):
-            group[p.nodes] = k
-            displacement[p.nodes] = np.asarray(p.displacement, dtype=np.float64)
-        self._kin_group = np.ascontiguousarray(group[self._kin_nodes])
-        self._kin_displacement = np.ascontiguousarray(displacement[self._kin_nodes])
-        self._group_t0 = np.array([float(p.t_start) for p in m.prescribed] + [0.0])
-        self._group_t1 = np.array([float(p.t_end) for p in m.prescribed] + [0.0])
+        # kinematic targets: the model's one routine (Model.kinematic; its nodes are pack's kin_nodes), evaluated
+        # inside the step kernel
+        kin = m.kinematic()
+        self._kin_group, self._kin_displacement = kin.group, kin.displacement
+        self._group_t0, self._group_t1 = kin.t_start, kin.t_end
         self._X = np.ascontiguousarray(m.X, dtype=np.float64)
         self._blocked_scale = self._node_scale * self._w  # the sweep's lane loop leaves w_k out of its increments
         single = self.precision == "float32"
@@ -188,14 +141,13 @@ class EBM:
         self._last_load_force = np.ascontiguousarray(self._last_load_force, dtype=np.float64)
         # compiled (on first use) for this material, Prony and precision only; the two-thread variant only when a
         # step takes it (a mesh of PARALLEL_MIN_TETS tets or more and more than one numba thread)
-        self._step_kernel, self._sweeps_kernel = ebm_blocked.variant(self._code, self.prony is not None, single)
+        self._step_kernel, self._sweeps_kernel = blocked_step.variant(self._code, self.prony is not None, single)
         self._large = m.n_tets >= ebm_blocked.PARALLEL_MIN_TETS
-        # the step kernel's arguments that do not change between steps (before and after the Prony rows)
-        self._step_args = (self._X, self._f_ext, self._w, self._kin_nodes, self._kin_group, self._kin_displacement,
-                           self._group_t0, self._group_t1, self._node_index, self._params)
-        self._step_args_after = (self._out, self._corners, self._free_nodes, self._free_start, self._free_slot,
-                                 self._kin_start, self._kin_slot, self._blocked_scale, self._last_load_force,
-                                 m.n_tets, self._params32, self._out32, self._corners32)
+        # the step kernel's argument groups that do not change between steps (blocked_step.step)
+        self._step_body = (self._X, self._f_ext, self._w, self._last_load_force)
+        self._step_kinematic = (self._kin_nodes, self._kin_group, self._kin_displacement, self._group_t0,
+                                self._group_t1, self._kin_start, self._kin_slot)
+        self._step_blocks32 = (self._params32, self._out32, self._corners32)
 
     def _blocked_kernels(self):
         """``(step, sweeps, threads)``: the two-thread variant on a large mesh when numba has more than one thread
@@ -203,7 +155,7 @@ class EBM:
         threads = numba.get_num_threads() if self._large else 1
         if threads == 1:
             return self._step_kernel, self._sweeps_kernel, 1
-        step, sweeps = ebm_blocked.variant(self._code, self.prony is not None, self.precision == "float32", True)
+        step, sweeps = blocked_step.variant(self._code, self.prony is not None, self.precision == "float32", True)
         return step, sweeps, threads
 
     def _relaxation(self, h):
@@ -262,7 +214,7 @@ class EBM:
         F = tensor.deformation_gradients(x, m.tets, m.Dm_inv)
         with np.errstate(invalid="ignore", divide="ignore"):
             vl = models.model_curves(m)
-            psi = energy_density(name, F, mu, lam, eta, a0, vl=vl)
+            psi = models.energy_density_h(name, F, mu, lam, eta, a0, vl=vl)
             P = models.first_piola(name, F, mu, lam, eta, a0, vl=vl)
         if self.prony is not None:
             S = np.linalg.solve(F, P)  # second Piola S = F^-1 P
@@ -350,7 +302,7 @@ class EBM:
         return State(x=x, v=v, t=t, private=state.private)
 
     def _step_blocked(self, state: State, dt: float) -> State:
-        """``step`` with each substep in one compiled call (``sim.integrators.ebm.blocked.step``)."""
+        """``step`` with each substep in one compiled call (``sim.integrators.ebm.blocked_step.step``)."""
         h = dt / self.substeps
         x = np.ascontiguousarray(state.x, dtype=np.float64)
         v = np.ascontiguousarray(state.v, dtype=np.float64)
@@ -362,8 +314,10 @@ class EBM:
             x, v = np.empty(shape), np.empty(shape)
             t += h
             a = 1.0 if self.prony is None else self._relaxation(h)[1][0]
-            done, work, strain, stretch = kernel(x_old, v_old, x, v, t, h, *self._step_args, self._relax_blocks,
-                                                 *self._step_args_after, a, self.iterations, threads)
+            blocks = (self._node_index, self._params, self._relax_blocks, self._out, self._corners, self._free_nodes,
+                      self._free_start, self._free_slot, self._blocked_scale, self.model.n_tets)
+            done, work, strain, stretch = kernel(x_old, v_old, x, v, t, h, self._step_body, self._step_kinematic,
+                                                 blocks, self._step_blocks32, a, self.iterations, threads)
             if done < self.iterations:
                 raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
             self.work_in += work

@@ -12,7 +12,7 @@ iteration, for every colour (tets sharing no node; the colours of separate domai
 swept concurrently, ``sim.integrators.xpbd.colouring.split_into_domains``, and a colour's tets are projected in
 vectorised blocks, ``sim.integrators.xpbd.blocked``), project
 ``dlambda = (-C - alpha~ lambda) / (sum_i w_i |grad_i C|^2 + alpha~)``, ``alpha~ = alpha / dt^2``,
-``x_i += w_i grad_i C dlambda`` (Qian 4.42–4.44; its eq. 4.22 gradient typo is noted in DESIGN.md);
+``x_i += w_i grad_i C dlambda`` (Qian 4.42–4.44; its eq. 4.22 gradient typo: docs/design.md, "Qian 4.22: strain-constraint gradient");
 then tool contact, then ``v = (x - x_prev) / dt``. The ``jacobi`` solver averages the corrections of all
 tets per iteration (with relaxation) instead.
 
@@ -31,7 +31,8 @@ from sim.integrators.xpbd import blocked, kernels
 from sim.integrators.xpbd.colouring import colour_tets, split_into_domains
 from sim.integrators.xpbd.energy import EnergyConstraints
 from sim.integrators.xpbd.prony import MaxwellBranches
-from sim.integrators.xpbd.strain import GreenStrainLimits, limit_boxes
+from sim.integrators.xpbd.settings import XPBDSettings, limit_boxes
+from sim.integrators.xpbd.strain import GreenStrainLimits
 from sim.model import Model, State
 from sim.probe import resolve_contact
 
@@ -94,55 +95,37 @@ class TetConstraints:
 
 
 class XPBD:
-    """XPBD integrator; settings: ``substeps``, ``iterations``, ``solver`` ("gauss_seidel" | "jacobi"),
-    ``coupling`` ("coupled": both constraints of a tet in one 2x2 solve | "sequential": in turn),
-    ``relaxation`` (Jacobi), ``damping`` [1/s] (velocity decay ``exp(-damping dt)``), ``strain_min`` /
-    ``strain_max``: hard unilateral limits on the stretch |F a| along the rest frame's axes and the
-    fibre (Qian 4.3.4, eq. 4.21 on stretches), projected after every sweep; Green-strain limits in a
-    material frame (``limit_frame``, ``limit_axes``, ``green_stretch_min`` / ``green_stretch_max``,
-    ``shear_max``, ``strain_hold``, ``limit_compliance``; ``sim.integrators.xpbd.strain``), projected after every
-    sweep too; ``material``: "stable_neo_hookean" (default, the numba kernels with the model's mu and
-    lambda) or "model" (the model's own energy as C = sqrt(2 V Psi), ``sim.integrators.xpbd.energy``; ``energy_kernel``
-    "numba", the default where the material has one, or "numpy"); ``kernel``
-    (Gauss–Seidel): "blocked" (default, tets of a colour projected 16 at a time by a vectorised loop)
-    or "scalar" (the per-tet reference ``project_tet``; same positions up to rounding); ``domains``
-    (default: the numba thread count at start-up): slabs whose interiors are swept concurrently, one per
-    thread, before the separator layer between them (the result does not depend on the threads used).
-    A model with Prony terms (``material_params["prony"]``) gets one more constraint set per term
-    (``sim.integrators.xpbd.prony``)."""
+    """XPBD integrator. Parameters: :class:`sim.integrators.xpbd.settings.XPBDSettings` (its module docstring is
+    the parameter table: name, default, unit, range, equation). ``kernel = "blocked"`` projects the tets of a colour
+    16 at a time by a vectorised loop, ``"scalar"`` is the per-tet reference ``project_tet`` (same positions up to
+    rounding); ``domains`` slabs have their interiors swept concurrently, one per thread, before the separator
+    layer between them (the result does not depend on the threads used). A model with Prony terms
+    (``material_params["prony"]``) gets one more constraint set per term (``sim.integrators.xpbd.prony``)."""
 
     name = "xpbd"
 
-    def __init__(self, model: Model, settings: dict):
+    def __init__(self, model: Model, settings: XPBDSettings | dict | None = None):
+        settings = XPBDSettings.of(settings)
+        self.settings = settings
         self.model = model
-        self.substeps = int(settings.get("substeps", 10))
-        self.iterations = int(settings.get("iterations", 10))
-        self.solver = settings.get("solver", "gauss_seidel")
-        self.relaxation = float(settings.get("relaxation", 1.0))
-        self.damping = float(settings.get("damping", 0.0))
-        if self.solver not in ("gauss_seidel", "jacobi"):
-            raise ValueError(f"xpbd solver must be 'gauss_seidel' or 'jacobi', found {self.solver!r}")
-        coupling = settings.get("coupling", "coupled" if settings.get("coupled", True) else "sequential")
-        smin, smax = settings.get("strain_min"), settings.get("strain_max")
+        self.substeps = settings.substeps
+        self.iterations = settings.iterations
+        self.solver = settings.solver
+        self.relaxation = settings.relaxation
+        self.damping = settings.damping
+        coupling = settings.coupling or ("coupled" if settings.coupled else "sequential")
+        smin, smax = settings.strain_min, settings.strain_max
         self.strain_limits = None if smin is None and smax is None else (
             0.0 if smin is None else float(smin), np.inf if smax is None else float(smax))
-        if coupling not in ("coupled", "sequential"):
-            raise ValueError(f"xpbd coupling must be 'coupled' or 'sequential', found {coupling!r}")
         self.mode = 1 if coupling == "coupled" else 0
-        self.material = settings.get("material", "stable_neo_hookean")
-        if self.material not in ("stable_neo_hookean", "model"):
-            raise ValueError(f"xpbd material must be 'stable_neo_hookean' or 'model', found {self.material!r}")
-        self.kernel = settings.get("kernel", "blocked")
-        if self.kernel not in ("blocked", "scalar"):
-            raise ValueError(f"xpbd kernel must be 'blocked' or 'scalar', found {self.kernel!r}")
+        self.material = settings.material
+        self.kernel = settings.kernel
         # material = "model": "numba" (default where the material has one) or "numpy" (sim.integrators.xpbd.energy)
-        self.energy_kernel = settings.get("energy_kernel")
+        self.energy_kernel = settings.energy_kernel
         m = model
         # Per-tet data is stored in colour order, so each colour is a contiguous range read sequentially:
         # the colours of each domain's interior, then the separator's (see split_into_domains).
-        self.domains = int(settings.get("domains", numba.config.NUMBA_NUM_THREADS))
-        if self.domains < 1:
-            raise ValueError(f"xpbd domains must be >= 1, found {self.domains}")
+        self.domains = numba.config.NUMBA_NUM_THREADS if settings.domains is None else settings.domains
         tets = np.ascontiguousarray(m.tets, dtype=np.int64)
         colours, domain_colour = [], [0]
         for part in split_into_domains(m.X, tets, self.domains):
@@ -173,23 +156,10 @@ class XPBD:
                 np.stack([np.einsum("mij,mj->mi", m.Dm_inv, a) for a in axes], axis=1)[order])
         self.green_limits = (GreenStrainLimits(m, order, self.colour_start, settings)
                              if limit_boxes(settings) is not None else None)
-        self.kin_idx, _ = m.kinematic_targets(0.0)
-        self.kin_base = m.X[self.kin_idx]
-        row_of = {int(node): row for row, node in enumerate(self.kin_idx)}
-        # the last prescription of a node wins, as in Model.kinematic_targets
-        self.prescribed_rows = [(np.array([row_of[int(i)] for i in p.nodes], dtype=np.int64), p) for p in m.prescribed]
+        self.kinematic = m.kinematic()
         counts = np.bincount(self.tets.ravel(), minlength=m.n_nodes).astype(np.float64)
         self.tet_scale = self.relaxation / counts[self.tets].max(axis=1)
         self.f_ext_acc = m.nodal_external_force() * np.where(self.w > 0, self.w, 0.0)[:, None]
-
-    def _kinematic_targets(self, t):
-        """Targets of the kinematic nodes ``self.kin_idx`` at time ``t`` (rest + ramped displacements)."""
-        if not self.model.prescribed:
-            return self.kin_base
-        target = self.kin_base.copy()
-        for rows, p in self.prescribed_rows:
-            target[rows] = self.kin_base[rows] + p.fraction(t) * np.asarray(p.displacement)
-        return target
 
     def step(self, state: State, dt: float) -> State:
         m = self.model
@@ -206,7 +176,7 @@ class XPBD:
             t_next = t + h
             x_prev = x.copy()
             x += h * v + h * h * self.f_ext_acc
-            x[self.kin_idx] = self._kinematic_targets(t_next)
+            x[self.kinematic.nodes] = self.kinematic.at(t_next)
             for constraints in self.sets:
                 constraints.reset()
             if self.green_limits is not None:

@@ -9,7 +9,7 @@ in that frame is ``E' = R^T E R = ((F R)^T (F R) - I) / 2``. With ``u_i = F r_i 
     E'_ij = (u_i . u_j - delta_ij) / 2,      dE'_ij/dx_k = (a_i[k] u_j + a_j[k] u_i) / 2   (k = 1..3)
 
 and ``dE'_ij/dx_0 = -(sum of the other three)``. This is Qian's eq. 4.22 with the corrections of
-DESIGN.md: the thesis's ``c_i`` are the columns ``m_i`` of ``Dm^-1`` (here ``a_i = Dm^-1 r_i``, which
+docs/design.md, "Qian 4.22: strain-constraint gradient": the thesis's ``c_i`` are the columns ``m_i`` of ``Dm^-1`` (here ``a_i = Dm^-1 r_i``, which
 is ``m_i`` in the rest frame), the factor 1/2 is missing there, and the fourth vertex's gradient is
 omitted.
 
@@ -39,12 +39,9 @@ import numpy as np
 from numba import njit, prange
 
 from sim.integrators.xpbd.kernels import PARALLEL_MIN_TETS
+from sim.integrators.xpbd.settings import FRAMES, XPBDSettings, limit_boxes
 
-ENTRIES = {"11": (0, 0), "22": (1, 1), "33": (2, 2), "12": (0, 1), "13": (0, 2), "23": (1, 2)}
-FRAMES = ("rest", "fibre")
 CONDITION = 1e-10  # entries whose free-node gradient is below this share of the whole are not projected
-SETTINGS = ("limit_frame", "limit_axes", "green_stretch_min", "green_stretch_max", "shear_max", "strain_hold",
-            "limit_compliance")
 
 
 def material_frames(model, frame: str) -> np.ndarray:
@@ -72,47 +69,6 @@ def green_strain_in_frame(x, tets, Dm_inv, R) -> np.ndarray:
     Ds = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]], axis=2)
     U = Ds @ Dm_inv @ R  # columns u_i = F r_i
     return 0.5 * (np.swapaxes(U, 1, 2) @ U - np.eye(3))
-
-
-def limit_boxes(settings: dict):
-    """``(entry_i, entry_j, lo, hi)`` arrays of the limited entries from the settings, or ``None`` when
-    no Green-strain limit is asked for."""
-    gmin, gmax = settings.get("green_stretch_min"), settings.get("green_stretch_max")
-    shear = settings.get("shear_max")
-    hold = dict(settings.get("strain_hold") or {})
-    axes = settings.get("limit_axes") or (1, 2, 3)
-    if gmin is None and gmax is None and shear is None and not hold:
-        return None
-    if any(int(a) not in (1, 2, 3) for a in axes):
-        raise ValueError(f"xpbd limit_axes must be frame axes 1, 2 or 3, found {list(axes)}")
-    if gmin is not None and not -0.5 < float(gmin) <= 0.0:
-        raise ValueError(f"xpbd green_stretch_min must lie in (-0.5, 0] (E_ii >= -1/2 always), found {gmin}")
-    if gmax is not None and not float(gmax) >= 0.0:
-        raise ValueError(f"xpbd green_stretch_max must be >= 0, found {gmax}")
-    if shear is not None and not float(shear) >= 0.0:
-        raise ValueError(f"xpbd shear_max must be >= 0, found {shear}")
-    boxes = {}
-    if gmin is not None or gmax is not None:
-        for a in sorted({int(a) for a in axes}):
-            boxes[f"{a}{a}"] = (-np.inf if gmin is None else float(gmin), np.inf if gmax is None else float(gmax))
-    if shear is not None:
-        for key in ("12", "13", "23"):
-            boxes[key] = (-float(shear), float(shear))
-    for key, value in hold.items():
-        key = str(key)
-        if key not in ENTRIES:
-            raise ValueError(f"xpbd strain_hold entries are {', '.join(ENTRIES)}, found {key!r}")
-        if key in boxes:
-            raise ValueError(f"xpbd strain_hold[{key!r}] conflicts with a bound on the same entry")
-        value = float(value)
-        if key[0] == key[1] and not value > -0.5:
-            raise ValueError(f"xpbd strain_hold[{key!r}] = {value}: a stretch entry must be > -0.5")
-        boxes[key] = (value, value)
-    keys = sorted(boxes, key=list(ENTRIES).index)
-    ij = np.array([ENTRIES[k] for k in keys], dtype=np.int64)
-    lo = np.array([boxes[k][0] for k in keys])
-    hi = np.array([boxes[k][1] for k in keys])
-    return ij[:, 0].copy(), ij[:, 1].copy(), lo, hi
 
 
 @njit(cache=True, inline="always")
@@ -238,19 +194,17 @@ class GreenStrainLimits:
     """The Green-strain limits of one body: per-tet frames, boxes, compliances and multipliers, stored
     in the integrator's colour order (``order``)."""
 
-    def __init__(self, model, order: np.ndarray, colour_start: np.ndarray, settings: dict):
+    def __init__(self, model, order: np.ndarray, colour_start: np.ndarray, settings: XPBDSettings):
         boxes = limit_boxes(settings)
         if boxes is None:
             raise ValueError("no Green-strain limit in the settings")
         self.entry_i, self.entry_j, self.lo, self.hi = boxes
-        self.frame = settings.get("limit_frame") or "rest"
+        self.frame = settings.limit_frame
         self.R = material_frames(model, self.frame)[order]
         self.tets = np.ascontiguousarray(model.tets[order], dtype=np.int64)
         self.Dm_inv = np.ascontiguousarray(model.Dm_inv[order])
         self.A = np.ascontiguousarray(self.Dm_inv @ self.R)
-        compliance = float(settings.get("limit_compliance") or 0.0)
-        if not compliance >= 0.0:
-            raise ValueError(f"xpbd limit_compliance must be >= 0 [1/Pa], found {compliance}")
+        compliance = settings.limit_compliance
         self.alpha = compliance / model.volume[order]
         self.colour_start = colour_start
         self.lam = np.zeros((model.n_tets, self.entry_i.size))

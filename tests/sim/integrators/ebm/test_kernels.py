@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 
 from sim.constitutive import elastic, models
+from sim.constitutive.models import energy_density_h as energy_density
 from sim.errors import SimulationDiverged
 from sim.forces import Accelerations
 from sim.integrators import make_integrator
 from sim.integrators.cnn.energy import EnergyPropagation
-from sim.integrators.ebm.solver import EBM, energy_density
+from sim.integrators.ebm.solver import EBM
 from sim.mesh import procedural, select
 from sim.model import Model, PrescribedDisplacement, State
 

@@ -1,5 +1,5 @@
 """XPBD strain limiting on Green-strain entries in a material frame (Qian 4.21–4.22): stretch and shear
-bounds, held (bilateral) entries, compliant limits, and the gradient of eq. 4.22 as corrected in DESIGN.md."""
+bounds, held (bilateral) entries, compliant limits, and the gradient of eq. 4.22 as corrected in docs/design.md ("Qian 4.22: strain-constraint gradient")."""
 from __future__ import annotations
 
 import numpy as np
@@ -9,7 +9,8 @@ from sim.cases.zhang import zhang_cube_shear
 from sim.constitutive import tensor
 from sim.constitutive.elastic import elastic_gradient
 from sim.integrators.xpbd.solver import XPBD
-from sim.integrators.xpbd.strain import entry_and_gradient, green_strain_in_frame, limit_boxes, material_frames
+from sim.integrators.xpbd.settings import limit_boxes
+from sim.integrators.xpbd.strain import entry_and_gradient, green_strain_in_frame, material_frames
 from sim.mesh import procedural, select
 from sim.mesh.types import TetMesh
 from sim.model import Model, State
@@ -66,7 +67,7 @@ def test_green_strain_entry_gradient_matches_finite_differences(frame):
                         fd[a, c] = (entry_and_gradient(xp, tets, A, t, i, j)[0]
                                     - entry_and_gradient(xm, tets, A, t, i, j)[0]) / (2 * h)
                 assert np.abs(fd - g).max() <= 1e-8 * np.abs(g).max()  # measured 1.5e-12 .. 3.4e-12
-                # Qian 4.22 corrected (DESIGN.md): in the rest frame the node-k gradient of E_ij is
+                # Qian 4.22 corrected (docs/design.md): in the rest frame the node-k gradient of E_ij is
                 # (f_j m_i[k] + f_i m_j[k]) / 2, with m_i the columns of Dm^-1 and node 0 minus the rest
                 if frame == "rest":
                     F = tensor.deformation_gradients(x, tets[t:t + 1], model.Dm_inv[t:t + 1])[0]
