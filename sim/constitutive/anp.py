@@ -54,10 +54,7 @@ def energy(model, x) -> float:
 def _volume_gradients(model, F):
     """dv_t/dx per tet as (m, 4, 3): v_t = V_t det F_t, dv/dF = V_t cof F."""
     G = model.volume[:, None, None] * tensor.cofactor(F) @ np.swapaxes(model.Dm_inv, 1, 2)
-    g = np.empty((F.shape[0], 4, 3))
-    g[:, 1:, :] = np.swapaxes(G, 1, 2)
-    g[:, 0, :] = -G.sum(axis=2)
-    return g
+    return tensor.node_gradients(G)
 
 
 def gradient(model, x) -> np.ndarray:

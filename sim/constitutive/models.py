@@ -69,12 +69,13 @@ def energy_density(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = 
 
 
 def energy_density_h(name: str, F, mu, lam, eta=None, a0=None, vl=None):
-    """Psi per tet [J/m^3] for the EBM multiplier, evaluated from the displacement gradient H = F - I.
+    """Psi per tet [J/m^3] evaluated from the displacement gradient H = F - I: the NumPy twin of the numba
+    ``sim.constitutive.kernels.energy_piola`` that the EBM multiplier uses.
 
-    The same energies as ``sim.constitutive.models.energy_density``, written so that their rounding error scales
-    with the strain: 5.7 divides W_k by |dW_k/dx|^2 and both vanish at rest, so the textbook forms'
+    The same energies as :func:`energy_density` (the reference form), kept as a second form because their rounding
+    error must scale with the strain: 5.7 divides W_k by |dW_k/dx|^2 and both vanish at rest, so the textbook forms'
     absolute error of about eps mu turns elements at rest to rounding into noise-driven increments
-    (docs/ebm.md). ``J - 1 = tr H + I2(H) + det H``, ``I1 - 3 = 2 tr H + H:H``,
+    (docs/ebm.md, "Energies near rest"). ``J - 1 = tr H + I2(H) + det H``, ``I1 - 3 = 2 tr H + H:H``,
     ``J^(-2/3) - 1 = (y - 1)(y + 1)`` with ``y = J^(-1/3)`` and ``y - 1 = -j / (J (y^2 + y + 1))``, j = J - 1;
     NaN for J <= 0 in the split models.
     """

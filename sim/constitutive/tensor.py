@@ -53,3 +53,12 @@ def dF_dx(Dm_inv):
             for j in range(3):
                 B[:, 3 * i + j, 3 * a + i] = weights[:, a, j]
     return B
+
+
+def node_gradients(G):
+    """(m, 4, 3) gradients on a tet's four nodes from ``G = dE/dF Dm^-T`` (m, 3, 3): node k = 1..3 gets column k,
+    node 0 minus their sum."""
+    g = np.empty((G.shape[0], 4, 3))
+    g[:, 1:, :] = np.swapaxes(G, 1, 2)
+    g[:, 0, :] = -G.sum(axis=2)
+    return g

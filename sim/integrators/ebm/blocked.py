@@ -145,7 +145,8 @@ def load_corners(x, node_index, corners):
 @njit(cache=True, inline="always")
 def _split_model(F, mu, kappa, eta, ax, ay, az, a0_norm, fibre):
     """Zhang 5.35 (+ 5.37 when ``fibre``): ``(num, den, P)`` with ``Psi = num / den``, from H = F - I (module
-    docstring); NaN for J <= 0. The same quantities as ``sim.constitutive.kernels.energy_piola`` up to rounding."""
+    docstring); NaN for J <= 0. The same quantities as ``sim.constitutive.kernels.energy_piola`` up to rounding, in a
+    branch-free form whose lane loop vectorises: kept for speed (docs/ebm.md#how-fast-and-why)."""
     f00, f01, f02, f10, f11, f12, f20, f21, f22 = F
     h00, h11, h22 = f00 - 1.0, f11 - 1.0, f22 - 1.0
     # cof H (the off-diagonal entries of H are F's)

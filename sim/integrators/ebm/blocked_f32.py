@@ -46,7 +46,8 @@ def _inverse_cube_root_f32(J):
 
 @njit(cache=True, inline="always")
 def _split_model_f32(h00, h01, h02, h10, h11, h12, h20, h21, h22, mu, kappa, eta, ax, ay, az, a0_norm, fibre):
-    """:func:`_split_model` in float32 from H (every operand float32)."""
+    """``sim.integrators.ebm.blocked._split_model`` in float32 from H (every operand float32); kept for the
+    float32 lane loop's speed (docs/ebm.md#how-fast-and-why)."""
     f00, f11, f22 = h00 + _F32_ONE, h11 + _F32_ONE, h22 + _F32_ONE
     f01, f02, f10, f12, f20, f21 = h01, h02, h10, h12, h20, h21
     c00 = h11 * h22 - f21 * f12

@@ -224,10 +224,7 @@ class EBM:
             S_hat, psi = self.prony.relaxed(S, psi, h)
             P = F @ S_hat
         G = m.volume[:, None, None] * P @ np.swapaxes(m.Dm_inv, 1, 2)  # columns: nodes 1..3
-        grads = np.empty((m.n_tets, 4, 3))
-        grads[:, 1:, :] = np.swapaxes(G, 1, 2)
-        grads[:, 0, :] = -G.sum(axis=2)
-        return m.volume * psi, grads, P
+        return m.volume * psi, tensor.node_gradients(G), P
 
     def nodal_forces(self, x, h=1.0):
         """Internal forces -sum_k dW_k/dx per node (with the current viscoelastic relaxation)."""

@@ -117,9 +117,7 @@ class EnergyConstraints:
             if not ok.any():
                 continue
             G = (V / np.where(ok, C, 1.0))[:, None, None] * P @ np.swapaxes(self.Dm_inv[sl], 1, 2)
-            grads = np.empty((tets.shape[0], 4, 3))
-            grads[:, 1:] = np.swapaxes(G, 1, 2)
-            grads[:, 0] = -G.sum(axis=2)
+            grads = tensor.node_gradients(G)
             wt = w[tets]
             denom = np.einsum("ka,kad,kad->k", wt, grads, grads) + inv_dt2
             dl = np.where(ok, (-C - inv_dt2 * lam[sl]) / denom, 0.0)

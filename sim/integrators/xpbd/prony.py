@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.constitutive import models, tensor
+from sim.constitutive import tensor
 from sim.constitutive.prony import check_terms
 
 
@@ -75,26 +75,3 @@ class MaxwellBranches:
     def sets(self):
         """``[(weight, rest matrix), ...]``: the long-term set first, then one per branch."""
         return [(self.long_term, self.Dm_inv)] + [(float(a), self.rest_matrix(i)) for i, a in enumerate(self.weights)]
-
-
-def viscoelastic_energy(x, tets, volume, sets, name, mu, lam, eta=None, a0=None, vl=None) -> float:
-    """``sum_sets weight V Psi(F B)`` [J] over the constraint sets ``[(weight, B), ...]``."""
-    total = 0.0
-    for weight, B in sets:
-        F = tensor.deformation_gradients(x, tets, B)
-        total += weight * float(np.sum(volume * models.energy_density(name, F, mu, lam, eta, a0, vl=vl)))
-    return total
-
-
-def viscoelastic_gradient(x, tets, volume, sets, name, mu, lam, eta=None, a0=None, vl=None) -> np.ndarray:
-    """d/dx of :func:`viscoelastic_energy` (n, 3): node k = 1..3 of a tet gets ``weight V P B^T``
-    column k, node 0 minus their sum."""
-    g = np.zeros_like(x)
-    for weight, B in sets:
-        F = tensor.deformation_gradients(x, tets, B)
-        P = models.first_piola(name, F, mu, lam, eta, a0, vl=vl)
-        G = (weight * volume)[:, None, None] * P @ np.swapaxes(B, 1, 2)
-        for k in range(3):
-            np.add.at(g, tets[:, k + 1], G[:, :, k])
-        np.add.at(g, tets[:, 0], -G.sum(axis=2))
-    return g
