@@ -18,12 +18,12 @@ import time
 
 import numba
 
-from sim.cases import relative_l2, variational_error, zhang_cylinder
-from sim.ebm import EBM
-from sim.integrators import SimulationDiverged
+from sim.cases.zhang import relative_l2, variational_error, zhang_cylinder
+from sim.errors import SimulationDiverged
+from sim.integrators.ebm.solver import EBM
+from sim.integrators.reference import ReferenceIntegrator
+from sim.integrators.xpbd.solver import XPBD
 from sim.model import State
-from sim.reference import ReferenceIntegrator
-from sim.xpbd import XPBD
 
 
 def reference(case):

@@ -8,11 +8,11 @@ plus explicit and linear-FEM CNN for scale. The rates at the thesis's own sizes 
 The thesis's settings are kept: EBM 20 iterations per step (its 5.3 figures), dt = 1 ms; the CNN with
 energy propagation one step per 60 Hz frame (dt = 1/60 s) with energy_rho = 1 m^2/s, which our forward
 Euler (4.12) needs 1,482 potential sub-steps to resolve (printed; the numba path evaluates them in closed
-form, sim/cnn_energy.py ModalPropagation). One core: numba and BLAS pinned to one thread. Each rate is the
+form, sim/integrators/cnn/energy.py ModalPropagation). One core: numba and BLAS pinned to one thread. Each rate is the
 median of ``repeats`` timed runs (wall time); the load average at the start is printed with them, because the
 machine may be shared.
 
-EBM runs with ``--kernel`` (default ``blocked``, sim/ebm_blocked.py) in float64 (the ``ebm_*_480tets_hz`` keys)
+EBM runs with ``--kernel`` (default ``blocked``, sim/integrators/ebm/blocked.py) in float64 (the ``ebm_*_480tets_hz`` keys)
 and, in the same run, with the blocked kernel's explicit float32 option (``*_float32_hz``, also at the thesis's
 504 tets: not the default; its deviation from float64 is measured in docs/ebm.md) and the scalar numba kernel
 (``*_scalar_hz``); the other integrators with ``numba`` (or ``numpy``).

@@ -6,3 +6,7 @@ The CLI turns these into a one-line message and exit status 2, never a traceback
 
 class MeshError(ValueError):
     """A mesh file or procedural mesh request that cannot be used (missing, malformed, broken)."""
+
+
+class SimulationDiverged(RuntimeError):
+    """Raised when an integrator's state becomes non-finite or unbounded."""

@@ -5,39 +5,65 @@ Internal forces come from the shared constitutive library (``force_model = "cons
 model's own nonlinear material) or from the linear FEM stiffness ``f_int = -K (x - X)``
 (``"linear_fem"``). Damping is Rayleigh, ``D = alpha M + beta K`` (settings ``rayleigh_alpha`` [1/s]
 and ``rayleigh_beta`` [s]). The constitutive forces run in the per-tet numba kernel of
-``sim.ebm_kernels`` (``kernel = "numba"``, default) for StVK and the (stable / anisotropic) Neo-Hookean
-models with element pressure; ``kernel = "numpy"``, Valanis–Landel curves and average nodal pressure use
-``sim.constitutive`` (the reference the kernel is tested against). From ``ebm_kernels.PARALLEL_MIN_TETS`` tets with
+``sim.constitutive.force_kernels`` (``kernel = "numba"``, default) for StVK and the (stable / anisotropic)
+Neo-Hookean models with element pressure; ``kernel = "numpy"``, Valanis–Landel curves and average nodal pressure
+use ``sim.constitutive.elastic`` (the reference the kernel is tested against). From
+``force_kernels.PARALLEL_MIN_TETS`` tets with
 more than one numba thread, the kernel's two-thread version (per-tet contributions, then a per-node gather in tet
 order: bit-identical forces for any thread count).
 """
 from __future__ import annotations
 
+from typing import Literal
+
 import numba
 import numpy as np
+from pydantic import Field
 
-from sim import constitutive, ebm_kernels, linear_fem
-from sim.integrators import SimulationDiverged
+from sim.constitutive import elastic, force_kernels, linear_fem, models
+from sim.constitutive.kernels import MATERIALS
+from sim.errors import SimulationDiverged
+from sim.settings import Settings
 
 FORCE_MODELS = ("constitutive", "linear_fem")
 KERNELS = ("numba", "numpy")
 
 
+class ForceSettings(Settings):
+    """The force-model keys of the explicit-type integrators' scene tables (``explicit``, ``cnn``)."""
+
+    force_model: Literal[FORCE_MODELS] = Field(  # type: ignore[valid-type]
+        "constitutive", description="the model's own material, or the linear FEM stiffness on displacement")
+    rayleigh_alpha: float = Field(0.0, ge=0.0, le=1e3, description="mass-proportional damping alpha [1/s]")
+    rayleigh_beta: float = Field(0.0, ge=0.0, le=1.0, description="stiffness-proportional damping beta [s]")
+
+
+class ForceKernel(Settings):
+    """The kernel of the constitutive forces (code and benchmarks choose it; scenes do not)."""
+
+    kernel: Literal[KERNELS] = Field(  # type: ignore[valid-type]
+        "numba", description="the per-tet numba kernel, or the NumPy reference (sim.constitutive.elastic)")
+
+
+class AccelerationSettings(ForceSettings, ForceKernel):
+    """What :class:`Accelerations` reads."""
+
+
 class Accelerations:
-    def __init__(self, model, settings: dict, who: str):
+    """``settings``: the integrator's settings (any model with the fields of :class:`AccelerationSettings`, or a
+    mapping of them); ``force_model`` "energy" (cnn) is turned into "linear_fem" by the caller."""
+
+    def __init__(self, model, settings, who: str):
+        if not isinstance(settings, Settings):
+            settings = AccelerationSettings.of(settings)
         self.model = model
         self.who = who
-        self.force_model = settings.get("force_model", "constitutive")
-        if self.force_model not in FORCE_MODELS:
-            raise ValueError(f"{who}: force_model must be one of {', '.join(FORCE_MODELS)}, "
-                             f"found {self.force_model!r}")
-        kernel = settings.get("kernel", "numba")
-        if kernel not in KERNELS:
-            raise ValueError(f"{who}: kernel must be one of {', '.join(KERNELS)}, found {kernel!r}")
+        self.force_model = settings.force_model
+        kernel = settings.kernel
         self._kernel_args = None
-        if (kernel == "numba" and self.force_model == "constitutive" and not constitutive.uses_anp(model)
-                and model.constitutive in ebm_kernels.MATERIALS):
-            name, mu, lam, eta, a0 = constitutive.model_params(model)
+        if (kernel == "numba" and self.force_model == "constitutive" and not models.uses_anp(model)
+                and model.constitutive in MATERIALS):
+            name, mu, lam, eta, a0 = models.model_params(model)
             m = model.n_tets
             self._kernel_args = (
                 np.ascontiguousarray(model.tets, dtype=np.int64), np.ascontiguousarray(model.Dm_inv, dtype=np.float64),
@@ -45,16 +71,17 @@ class Accelerations:
                 np.ascontiguousarray(lam, dtype=np.float64),
                 np.ascontiguousarray(np.zeros(m) if eta is None else eta, dtype=np.float64),
                 np.ascontiguousarray(np.zeros((m, 3)) if a0 is None else a0, dtype=np.float64),
-                ebm_kernels.MATERIALS[name], False, 1.0, np.zeros((1, 3, 3)), np.zeros(1))
-        # two threads on large meshes (bit-identical forces; sim.ebm_kernels.forces_and_energy_parallel)
-        self._large = model.n_tets >= ebm_kernels.PARALLEL_MIN_TETS
+                MATERIALS[name], False, 1.0, np.zeros((1, 3, 3)), np.zeros(1))
+        # two threads on large meshes (bit-identical forces; sim.constitutive.force_kernels.forces_and_energy_parallel)
+        self._large = model.n_tets >= force_kernels.PARALLEL_MIN_TETS
         self._parallel_scratch = None
-        self.alpha = float(settings.get("rayleigh_alpha", 0.0))
-        self.beta = float(settings.get("rayleigh_beta", 0.0))
+        self.alpha = float(settings.rayleigh_alpha)
+        self.beta = float(settings.rayleigh_beta)
         need_K = self.force_model == "linear_fem" or self.beta != 0.0
         self.K = linear_fem.stiffness_matrix(model) if need_K else None
         self.inv_mass = np.where(model.mass > 0, 1.0 / np.maximum(model.mass, 1e-300), 0.0)
-        self.kinematic, _ = model.kinematic_targets(0.0)
+        self._kinematic_targets = model.kinematic()
+        self.kinematic = self._kinematic_targets.nodes
         self.f_ext = model.nodal_external_force()
         extent = np.ptp(model.X, axis=0)
         self.blow_up = 100.0 * float(np.linalg.norm(extent)) + 1.0  # displacement that means divergence [m]
@@ -70,11 +97,11 @@ class Accelerations:
             x = np.ascontiguousarray(x, dtype=np.float64)
             threads = self._threads()
             if threads > 1:
-                ebm_kernels.forces_and_energy_parallel(x, f, *self._kernel_args, *self._scratch(), threads)
+                force_kernels.forces_and_energy_parallel(x, f, *self._kernel_args, *self._scratch(), threads)
             else:
-                ebm_kernels.forces_and_energy(x, f, *self._kernel_args)
+                force_kernels.forces_and_energy(x, f, *self._kernel_args)
         elif self.force_model == "constitutive":
-            f = constitutive.elastic_forces(self.model, x)
+            f = elastic.elastic_forces(self.model, x)
         else:
             f = -(self.K @ (x - self.model.X).ravel()).reshape(x.shape)
         f = f + self.f_ext - self.alpha * self.model.mass[:, None] * v
@@ -91,15 +118,15 @@ class Accelerations:
         """Incidence lists and per-tet scratch of the two-thread force kernel (built on first use)."""
         if self._parallel_scratch is None:
             m = self.model.n_tets
-            start, corner = ebm_kernels.node_incidences(self._tets, self.model.n_nodes)
+            start, corner = force_kernels.node_incidences(self._tets, self.model.n_nodes)
             self._parallel_scratch = (start, corner, np.empty((4 * m, 3)), np.empty(m), np.empty(m))
         return self._parallel_scratch
 
     def _count_inverted(self, x: np.ndarray) -> int:
         x = np.ascontiguousarray(x, dtype=np.float64)
         if self._threads() > 1:
-            return int(ebm_kernels.count_inverted_parallel(x, self._tets))
-        return int(ebm_kernels.count_inverted(x, self._tets))
+            return int(force_kernels.count_inverted_parallel(x, self._tets))
+        return int(force_kernels.count_inverted(x, self._tets))
 
     def start(self, x: np.ndarray) -> None:
         """Note how many elements are inverted in the first state the integrator steps from."""
@@ -131,7 +158,7 @@ class Accelerations:
     def set_kinematic(self, x: np.ndarray, v: np.ndarray, t: float, h: float) -> None:
         """Place fixed and prescribed nodes at their targets at ``t``, moving with their targets' speed
         over the last step (not the gap to where the integrator's update had put them)."""
-        idx, target = self.model.kinematic_targets(t)
-        _, before = self.model.kinematic_targets(t - h)
-        v[idx] = (target - before) / h
+        idx = self.kinematic
+        target = self._kinematic_targets.at(t)
+        v[idx] = (target - self._kinematic_targets.at(t - h)) / h
         x[idx] = target

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from sim.mesh.types import TetMesh
 
@@ -35,6 +36,16 @@ def rest_shape(points: np.ndarray, tets: np.ndarray):
     return np.ascontiguousarray(Dm_inv), volume
 
 
+@njit(cache=True)
+def ramp_fraction(t, t_start, t_end):
+    """The share of a prescribed displacement applied at time ``t`` [s]: a linear ramp from 0 at ``t_start`` to 1
+    at ``t_end``, a step at ``t_start`` when ``t_end <= t_start``. Compiled so that the EBM step kernel calls the
+    same routine as NumPy code."""
+    if t_end <= t_start:
+        return 1.0 if t >= t_start else 0.0
+    return min(max((t - t_start) / (t_end - t_start), 0.0), 1.0)
+
+
 @dataclass
 class PrescribedDisplacement:
     """Nodes moved by ``displacement`` [m], ramped linearly from ``t_start`` to ``t_end`` [s]."""
@@ -45,9 +56,31 @@ class PrescribedDisplacement:
     t_end: float = 0.0
 
     def fraction(self, t: float) -> float:
-        if self.t_end <= self.t_start:
-            return 1.0 if t >= self.t_start else 0.0
-        return float(np.clip((t - self.t_start) / (self.t_end - self.t_start), 0.0, 1.0))
+        return float(ramp_fraction(float(t), float(self.t_start), float(self.t_end)))
+
+
+@dataclass(frozen=True)
+class KinematicTargets:
+    """The fixed and prescribed nodes of a model and where they are at any time: node ``nodes[k]`` sits at
+    ``rest[k] + ramp_fraction(t, t_start[g], t_end[g]) displacement[k]`` with ``g = group[k]`` the last
+    prescribed displacement that lists it, or at ``rest[k]`` when ``g = -1`` (fixed). The one kinematic-target
+    routine: every integrator places its kinematic nodes through :meth:`at` (the blocked EBM kernel takes these
+    arrays and calls :func:`ramp_fraction`)."""
+
+    nodes: np.ndarray  # (k,) int64, increasing
+    rest: np.ndarray  # (k, 3) [m]
+    group: np.ndarray  # (k,) int64, -1 for fixed nodes
+    displacement: np.ndarray  # (k, 3) [m], zero for fixed nodes
+    t_start: np.ndarray  # (g,) [s] per prescribed displacement
+    t_end: np.ndarray  # (g,) [s]
+
+    def at(self, t: float) -> np.ndarray:
+        """Targets (k, 3) [m] at time ``t``."""
+        target = self.rest.copy()
+        for g in range(self.t_start.size):
+            rows = self.group == g
+            target[rows] = self.rest[rows] + ramp_fraction(float(t), self.t_start[g], self.t_end[g]) * self.displacement[rows]
+        return target
 
 
 @dataclass
@@ -92,7 +125,7 @@ class Model:
     gravity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     external_force: np.ndarray | None = None
     probes: list = field(default_factory=list)
-    pressure: str = "element"  # "anp": volumetric energy on nodal volumes (sim.anp), split models only
+    pressure: str = "element"  # "anp": volumetric energy on nodal volumes (sim.constitutive.anp), split models only
 
     @classmethod
     def from_mesh(
@@ -158,13 +191,24 @@ class Model:
             mask[p.nodes] = True
         return mask
 
+    def kinematic(self) -> KinematicTargets:
+        """The fixed and prescribed nodes and their ramps (the last prescription of a node wins)."""
+        nodes = np.flatnonzero(self.kinematic_mask()).astype(np.int64)
+        group = np.full(self.n_nodes, -1, np.int64)
+        displacement = np.zeros((self.n_nodes, 3))
+        for g, p in enumerate(self.prescribed):
+            group[p.nodes] = g
+            displacement[p.nodes] = np.asarray(p.displacement, dtype=np.float64)
+        return KinematicTargets(
+            nodes=nodes, rest=np.ascontiguousarray(self.X[nodes], dtype=np.float64),
+            group=np.ascontiguousarray(group[nodes]), displacement=np.ascontiguousarray(displacement[nodes]),
+            t_start=np.array([float(p.t_start) for p in self.prescribed], dtype=np.float64),
+            t_end=np.array([float(p.t_end) for p in self.prescribed], dtype=np.float64))
+
     def kinematic_targets(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Indices and target positions at time ``t`` of every fixed or prescribed node."""
-        target = self.X.copy()
-        for p in self.prescribed:
-            target[p.nodes] = self.X[p.nodes] + p.fraction(t) * np.asarray(p.displacement)
-        idx = np.flatnonzero(self.kinematic_mask())
-        return idx, target[idx]
+        kinematic = self.kinematic()
+        return kinematic.nodes, kinematic.at(t)
 
     def nodal_external_force(self) -> np.ndarray:
         """Gravity plus constant nodal forces, (n, 3) [N]."""

@@ -1,25 +1,23 @@
-"""Simulation frames as .vtu for ParaView (meshio): displacement per node, strain-energy density and
-first Piola stress per tet. Written atomically (temporary file, then rename)."""
+"""Simulation frames as .vtu for ParaView (meshio): displacement and velocity per node, strain-energy density,
+first Piola stress and J per tet. ``write_vtu`` writes the file it is given; the application makes the write
+atomic (its one atomic-write helper hands a temporary path, then renames)."""
 from __future__ import annotations
-
-import os
-import tempfile
-from pathlib import Path
 
 import meshio
 import numpy as np
 
-from sim import constitutive
+from sim.constitutive import models, tensor
 from sim.model import Model, State
 
 
 def write_vtu(path, model: Model, state: State) -> None:
-    name, mu, lam, eta, a0 = constitutive.model_params(model)
-    F = constitutive.deformation_gradients(state.x, model.tets, model.Dm_inv)
+    """Write one frame to ``path`` in the VTU format (whatever the path's suffix)."""
+    name, mu, lam, eta, a0 = models.model_params(model)
+    F = tensor.deformation_gradients(state.x, model.tets, model.Dm_inv)
     with np.errstate(invalid="ignore", divide="ignore"):
-        vl = constitutive.model_curves(model)
-        psi = constitutive.energy_density(name, F, mu, lam, eta, a0, vl=vl)
-        P = constitutive.first_piola(name, F, mu, lam, eta, a0, vl=vl)
+        vl = models.model_curves(model)
+        psi = models.energy_density(name, F, mu, lam, eta, a0, vl=vl)
+        P = models.first_piola(name, F, mu, lam, eta, a0, vl=vl)
     mesh = meshio.Mesh(
         state.x,
         [("tetra", model.tets)],
@@ -27,14 +25,4 @@ def write_vtu(path, model: Model, state: State) -> None:
         cell_data={"strain_energy_density": [psi], "first_piola_stress": [P.reshape(-1, 9)],
                    "J": [np.linalg.det(F)]},
     )
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".vtu", dir=path.parent)
-    os.close(fd)
-    try:
-        meshio.write(tmp, mesh, file_format="vtu")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    meshio.write(path, mesh, file_format="vtu")

@@ -1,7 +1,7 @@
 """Heterogeneous stiffness painting with the poly6 kernel (Qian eqs. 4.26–4.28).
 
 A brush stroke at centre c with support radius h adds a kernel weight to every node within h
-(4.26–4.27). With the poly6 kernel in its published form (DESIGN.md: the thesis prints
+(4.26–4.27). With the poly6 kernel in its published form (docs/design.md, "Qian 4.28: poly6 kernel": the thesis prints
 ``(v^2 - h^2)^3``, negative inside the support)::
 
     w(v) = 315 / (64 pi h^9) (h^2 - v^2)^3   for v < h,   0 otherwise          (4.28)

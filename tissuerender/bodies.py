@@ -59,7 +59,7 @@ def build_tet_mesh(obj: ObjectSpec, scene: Scene) -> TetMesh:
     """The body's rest tet mesh, translated to ``obj.position``."""
     from sim.mesh import io, procedural
 
-    if obj.mesh is not None and Path(obj.mesh).suffix.lower() in (".ply", ".obj", ".stl"):
+    if obj.mesh is not None and Path(obj.mesh).suffix.lower() in io.SURFACE_SUFFIXES:
         # A closed surface: voxelised into tets (trimesh) with the boundary snapped back onto it.
         surface = io.read_surface(scene.resolve(obj.mesh))
         extent = surface.points.max(axis=0) - surface.points.min(axis=0)

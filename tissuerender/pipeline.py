@@ -110,7 +110,7 @@ def make_probe(tool):
 
 def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
     """Advance every body by one frame interval (``steps_per_frame`` steps of ``simulation.dt``)."""
-    from sim.integrators import SimulationDiverged
+    from sim.errors import SimulationDiverged
 
     dt = scene.simulation.dt
     with recorder.run("simulate"):

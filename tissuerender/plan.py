@@ -10,12 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sim.integrators import supported_by, supports
 from tissuerender.scene import Scene
-
-# integrators that evaluate the material's Prony series (XPBD: Maxwell branches, sim.xpbd_prony) / fibre
-# term (XPBD only with material = "model")
-PRONY_INTEGRATORS = frozenset({"ebm", "reference", "xpbd"})
-FIBRE_INTEGRATORS = frozenset({"ebm", "reference", "explicit", "cnn"})
 
 
 @dataclass(frozen=True)
@@ -98,16 +94,17 @@ def make_plan(scene: Scene) -> Plan:
     decide("simulate", simulate, f"{integrator} integrator driven by {', '.join(movers)}", why_not)
     mech = [materials.get_preset(o.material).mechanics for o in bodies]
     viscous = simulate and any(m.viscoelastic for m in mech)
-    decide("prony_state", viscous and integrator in PRONY_INTEGRATORS,
+    integrator_settings = getattr(scene.simulation, integrator, None)  # None for "none"
+    decide("prony_state", viscous and supports(integrator, "prony", integrator_settings),
            "a body's material is viscoelastic (Prony series)",
            (f"the {integrator} integrator has no viscoelastic terms: the Prony series is ignored "
-            f"(supported by {', '.join(sorted(PRONY_INTEGRATORS))})") if viscous else
+            f"(supported by {', '.join(supported_by('prony'))})") if viscous else
            ("no simulated viscoelastic material" if simulate else "no simulation"))
     fibred = simulate and any(m.fibre is not None for m in mech)
-    fibre_ok = integrator in FIBRE_INTEGRATORS or (integrator == "xpbd" and scene.simulation.xpbd.material == "model")
+    fibre_ok = supports(integrator, "fibres", integrator_settings)
     decide("fibre_terms", fibred and fibre_ok, "a body's material is anisotropic",
            (f"the {integrator} integrator has no fibre terms: the material is treated as isotropic "
-            f"(supported by {', '.join(sorted(FIBRE_INTEGRATORS))})") if fibred else
+            f"(supported by {', '.join(supported_by('fibres'))})") if fibred else
            ("no simulated anisotropic material" if simulate else "no simulation"))
     decide("contact", simulate and bool(scene.tools), "tools touch the tissue",
            "no tools" if not scene.tools else "no simulation")

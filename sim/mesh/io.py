@@ -6,12 +6,14 @@ import contextlib
 import io as io_module
 from pathlib import Path
 
+import meshio
 import numpy as np
 
 from sim.errors import MeshError
-from sim.mesh.procedural import KUHN, _compact, orient, signed_volumes
+from sim.mesh.procedural import KUHN, _compact, _grid, _snap_boundary, orient, signed_volumes
 from sim.mesh.types import SurfaceMesh, TetMesh
 
+# the one table of mesh file suffixes (the scene loader checks scene paths against it)
 TET_SUFFIXES = (".msh", ".vtu", ".vtk", ".mesh")
 SURFACE_SUFFIXES = (".ply", ".obj", ".stl")
 
@@ -59,11 +61,9 @@ def clean_tets(points: np.ndarray, tets: np.ndarray, source: str) -> tuple[TetMe
 def read_tet_mesh(path) -> TetMesh:
     """A tet mesh from .msh, .vtu, .vtk or .mesh (meshio); ``mesh.source`` is the path.
 
-    Negatively oriented tets are flipped and unreferenced nodes removed (counted in
-    ``read_tet_mesh.last_info``); anything unusable raises :class:`MeshError`.
+    Negatively oriented tets are flipped and unreferenced nodes removed (counted in ``mesh.repairs``);
+    anything unusable raises :class:`MeshError`.
     """
-    import meshio
-
     path = Path(path)
     _check_file(path, TET_SUFFIXES)
     chatter = io_module.StringIO()
@@ -80,16 +80,13 @@ def read_tet_mesh(path) -> TetMesh:
         raise MeshError(f"{path}: no tetrahedra in the file (found {', '.join(found)}); expected a tet mesh")
     mesh, info = clean_tets(m.points[:, :3] if m.points.shape[1] >= 3 else m.points,
                             np.concatenate(blocks), str(path))
-    read_tet_mesh.last_info = info
+    mesh.repairs = info
     return mesh
-
-
-read_tet_mesh.last_info = {}
 
 
 def read_surface(path) -> SurfaceMesh:
     """A triangle surface from .ply, .obj or .stl (trimesh), keeping the file's vertex normals and UVs."""
-    import trimesh
+    import trimesh  # lazy: seconds to import, and only surface files need it
 
     path = Path(path)
     _check_file(path, SURFACE_SUFFIXES)
@@ -148,9 +145,7 @@ def _file_normals(path: Path, tm, n: int) -> np.ndarray | None:
 def tetrahedralize_surface(surface: SurfaceMesh, h: float) -> TetMesh:
     """Tets filling a closed surface: voxelise (trimesh) at pitch ``h``, split voxels 6 ways, and snap
     boundary nodes onto the surface with the no-inversion guard of :func:`sim.mesh.procedural.from_sdf`."""
-    import trimesh
-
-    from sim.mesh.procedural import _grid, _snap_boundary
+    import trimesh  # lazy: seconds to import, and only surface files need it
 
     tm = trimesh.Trimesh(surface.points, surface.triangles, process=True)
     if not tm.is_watertight:

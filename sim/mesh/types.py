@@ -20,11 +20,14 @@ class TetMesh:
     points : (n, 3) float64 rest positions in metres.
     tets : (m, 4) int32 vertex indices, positively oriented.
     source : where the mesh came from (a file path or ``"procedural:<shape>"``), used in messages.
+    repairs : what reading the file repaired, ``{"flipped": int, "unreferenced_removed": int}`` (empty when the
+        mesh was not read from a file).
     """
 
     points: np.ndarray
     tets: np.ndarray
     source: str = "<memory>"
+    repairs: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.points = np.ascontiguousarray(self.points, dtype=np.float64)

@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sim.integrators.reference import ReferenceIntegrator
 from sim.mesh import procedural, select
 from sim.model import Model, State
 from sim.painting import Stroke, apply_painting, paint_weights, poly6
-from sim.reference import ReferenceIntegrator
 
 
 def test_poly6_is_a_normalised_smooth_kernel():

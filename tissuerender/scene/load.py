@@ -15,6 +15,7 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from typing import Annotated
 
+from sim.mesh.io import SURFACE_SUFFIXES, TET_SUFFIXES
 from tissuerender.errors import SceneError
 from tissuerender.scene import schema
 
@@ -24,8 +25,6 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 MAX_TETS = 400_000
-TET_SUFFIXES = (".msh", ".vtu", ".vtk", ".mesh")
-SURFACE_SUFFIXES = (".ply", ".obj", ".stl")
 MAX_SIM_STEPS = 2_000_000
 SECTIONS = ("scene", "objects", "simulation", "tools", "camera", "light", "effects", "output")
 

@@ -10,13 +10,21 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from sim.integrators import REGISTRY
+from sim.integrators.chainmail import ChainMailSceneSettings
+from sim.integrators.cnn.settings import CNNSceneSettings
+from sim.integrators.ebm.settings import EBMSceneSettings
+from sim.integrators.explicit import ExplicitSceneSettings
+from sim.integrators.reference import ReferenceSceneSettings
+from sim.integrators.xpbd.settings import XPBDSceneSettings
+
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Vec2Pos = Annotated[list[Annotated[float, Field(gt=0.0)]], Field(min_length=2, max_length=2)]
 RGB = Annotated[list[Annotated[float, Field(ge=0.0, le=1e6)]], Field(min_length=3, max_length=3)]
 Length = Annotated[float, Field(gt=0.0, le=1e3)]
 
 SHAPES = ("box", "beam", "cube", "cylinder", "slab", "liver", "kidney")
-INTEGRATORS = ("xpbd", "ebm", "cnn", "cnn_chainmail", "explicit", "reference", "none")
+INTEGRATORS = (*REGISTRY, "none")
 FORMATS = ("png", "hdr_npy", "vtu")
 AXES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
@@ -132,69 +140,6 @@ class ObjectSpec(Strict):
         return self
 
 
-class XPBDSettings(Strict):
-    solver: Literal["gauss_seidel", "jacobi"] = "gauss_seidel"
-    material: Literal["stable_neo_hookean", "model"] = "stable_neo_hookean"
-    coupled: bool = True
-    damping: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
-    relaxation: Annotated[float, Field(gt=0.0, le=2.0)] = 1.0
-    strain_min: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
-    strain_max: Annotated[float, Field(ge=1.0, le=100.0)] | None = None
-    # Green-strain limits in a material frame (Qian 4.21-4.22, sim.xpbd_strain)
-    limit_frame: Literal["rest", "fibre"] = "rest"
-    limit_axes: Annotated[list[Literal[1, 2, 3]], Field(min_length=1, max_length=3)] = [1, 2, 3]
-    green_stretch_min: Annotated[float, Field(gt=-0.5, le=0.0)] | None = None
-    green_stretch_max: Annotated[float, Field(ge=0.0, le=1e3)] | None = None
-    shear_max: Annotated[float, Field(ge=0.0, le=1e3)] | None = None
-    strain_hold: dict[Literal["11", "22", "33", "12", "13", "23"], Annotated[float, Field(gt=-0.5, le=1e3)]] = {}
-    limit_compliance: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
-
-    @model_validator(mode="after")
-    def _limits(self):
-        bounded = set()
-        if self.green_stretch_min is not None or self.green_stretch_max is not None:
-            bounded |= {f"{a}{a}" for a in self.limit_axes}
-        if self.shear_max is not None:
-            bounded |= {"12", "13", "23"}
-        clash = sorted(bounded & set(self.strain_hold))
-        if clash:
-            raise ValueError(f"strain_hold entries {clash} also have a bound (green_stretch_min/max or shear_max)")
-        return self
-
-
-class ReferenceSettings(Strict):
-    mode: Literal["dynamic", "quasistatic"] = "dynamic"
-    tol: Annotated[float, Field(gt=0.0, le=1e-2)] = 1e-8
-    max_newton: Annotated[int, Field(ge=1, le=1000)] = 50
-    anp: bool = False
-
-
-class EBMSettings(Strict):
-    update: Literal["average", "sum"] = "average"
-
-
-class CNNSettings(Strict):
-    K: Annotated[float, Field(gt=0.0, le=1e4)] = 4.0
-    saturation: Literal["output", "state"] = "state"
-    force_model: Literal["constitutive", "linear_fem", "energy"] = "constitutive"
-    energy_rho: Annotated[float, Field(gt=0.0, le=1e6)] = 1.0
-    energy_gradient: Literal["median_dual", "edge"] = "median_dual"
-    rayleigh_alpha: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
-    rayleigh_beta: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
-
-
-class ChainMailSettings(Strict):
-    strain_min: Annotated[float, Field(gt=0.0, le=1.0)] = 0.8
-    strain_max: Annotated[float, Field(ge=1.0, le=10.0)] = 1.2
-    tolerance: Annotated[float, Field(gt=0.0, le=0.1)] = 1e-4
-
-
-class ExplicitSettings(Strict):
-    force_model: Literal["constitutive", "linear_fem"] = "constitutive"
-    rayleigh_alpha: Annotated[float, Field(ge=0.0, le=1e3)] = 0.0
-    rayleigh_beta: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
-
-
 class Simulation(Strict):
     integrator: Literal[INTEGRATORS] = "none"  # type: ignore[valid-type]
     dt: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0 / 60.0
@@ -202,12 +147,13 @@ class Simulation(Strict):
     iterations: Annotated[int, Field(ge=1, le=10000)] = 10
     gravity: Vec3 = [0.0, 0.0, -9.81]
     write_vtu: bool = False
-    xpbd: XPBDSettings = XPBDSettings()
-    reference: ReferenceSettings = ReferenceSettings()
-    ebm: EBMSettings = EBMSettings()
-    cnn: CNNSettings = CNNSettings()
-    cnn_chainmail: ChainMailSettings = ChainMailSettings()
-    explicit: ExplicitSettings = ExplicitSettings()
+    # each integrator's table is its own scene settings model (sim.integrators: declared once, with the integrator)
+    xpbd: XPBDSceneSettings = XPBDSceneSettings()
+    reference: ReferenceSceneSettings = ReferenceSceneSettings()
+    ebm: EBMSceneSettings = EBMSceneSettings()
+    cnn: CNNSceneSettings = CNNSceneSettings()
+    cnn_chainmail: ChainMailSceneSettings = ChainMailSceneSettings()
+    explicit: ExplicitSceneSettings = ExplicitSceneSettings()
 
 
 class Keyframe(Strict):
