@@ -26,7 +26,7 @@ Each figure is the median of several runs after one warm-up (compilation, contex
 timed chain starts after a 50 ms pause (PAUSE_S: numba's OpenMP workers stop spinning); the effects
 alone run back to back, each backend's runs together. ``--backends osmesa`` (or ``numpy``) times one
 backend in the process (no ratio keys). The osmesa chain runs with its keep-awake threads unless
-TISSUERENDER_GL_KEEP_AWAKE=0 (postfx/keep_awake.py; the "machine" string says which); their CPU time is
+TISSUERENDER_GL_KEEP_AWAKE=0 (postfx/gl/keep_awake.py; the "machine" string says which); their CPU time is
 in osmesa_cpu_ms_total.
 """
 from __future__ import annotations
@@ -49,9 +49,19 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 import postfx  # noqa: E402
-from postfx import keep_awake, osmesa  # noqa: E402
-from postfx.params import (Bloom, Blur, ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask,  # noqa: E402
-                           LensFlare, SensorNoise, Sharpen, Tonemap)
+from postfx.bloom import Bloom  # noqa: E402
+from postfx.blur import Blur  # noqa: E402
+from postfx.chromatic_aberration import ChromaticAberration  # noqa: E402
+from postfx.color_grade import ColorGrade  # noqa: E402
+from postfx.depth_of_field import DepthOfField  # noqa: E402
+from postfx.gl import keep_awake  # noqa: E402
+from postfx.gl.context import Context  # noqa: E402
+from postfx.gl.library import library_available  # noqa: E402
+from postfx.laparoscope_mask import LaparoscopeMask  # noqa: E402
+from postfx.lens_flare import LensFlare  # noqa: E402
+from postfx.sensor_noise import SensorNoise  # noqa: E402
+from postfx.sharpen import Sharpen  # noqa: E402
+from postfx.tonemap import Tonemap  # noqa: E402
 
 W, H = 640, 480
 CHAIN = [("depth_of_field", DepthOfField(focus_distance=0.1, aperture=0.002, max_radius_px=8.0)),
@@ -136,7 +146,7 @@ def time_chains(hdr, depth, lens, chain, backends, repeats):
 def profile_passes(hdr, depth, lens, chain, repeats):
     """The osmesa chain pass by pass: each draw waits for the one before and for itself (so the sum is a
     little above the chain's own time), medians over ``repeats`` chains, in ms, keyed by pass and size."""
-    ctx = osmesa.Context.get()
+    ctx = Context.get()
     runs = []
     for r in range(repeats + 1):
         time.sleep(PAUSE_S)
@@ -185,7 +195,7 @@ def main() -> None:
     asked = [b.strip() for b in args.backends.split(",") if b.strip()]
     if not asked or set(asked) - {"numpy", "osmesa"}:
         parser.error("--backends takes numpy and/or osmesa")
-    backends = [b for b in ("numpy", "osmesa") if b in asked and (b == "numpy" or osmesa.library_available())]
+    backends = [b for b in ("numpy", "osmesa") if b in asked and (b == "numpy" or library_available())]
     result: dict = {}
     frames = {"": synthetic_frame(), "_rendered": rendered_frame(args.refresh_frame)}
     for suffix, (hdr, depth, lens, chain) in frames.items():
