@@ -111,12 +111,10 @@ def rendered_frame(refresh: bool):
     return data["hdr"], data["depth"], postfx.Lens(scene.camera.fov_deg, W, H), chain
 
 
-# Every timed run starts after this pause. numba's OpenMP workers (libgomp) spin for several
-# milliseconds after each parallel region before they sleep, and an osmesa chain started right after
-# a numpy chain shared the two cores with them: 62.9 ms against 52.1 ms after a 50 ms pause and 50.8 ms
-# after another osmesa chain (same process, quiet machine; 49.9 ms right after numpy with
-# GOMP_SPINCOUNT=0), while the numpy chain took 41.6 / 39.2 ms after an osmesa chain / a pause. A
-# program uses one backend; the pause keeps one backend's idle workers out of the other's time.
+# Every timed run starts after this pause. numba's OpenMP workers (libgomp) spin for a while after each
+# parallel region before they sleep, and an osmesa chain started right after a numpy chain shared the
+# two cores with them. A program uses one backend; the pause keeps one backend's idle workers out of
+# the other's time (docs/postfx.md, "How fast, and why").
 PAUSE_S = 0.05
 
 
@@ -134,7 +132,7 @@ def time_chains(hdr, depth, lens, chain, backends, repeats):
     cpu: dict = {b: [] for b in backends}
     for r in range(repeats):
         # the order alternates: in one process a chain ran slower right after the other backend's chain
-        # than after its own (osmesa 43-49 vs 33-35 ms on the rendered frame, 2026-11-30 sessions)
+        # than after its own
         for backend in (backends if r % 2 == 0 else backends[::-1]):
             time.sleep(PAUSE_S)
             c0 = time.process_time()

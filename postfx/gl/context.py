@@ -173,8 +173,9 @@ class Context:
 
     def upload_into(self, key, array: np.ndarray):
         """``upload(array)`` into a texture kept under ``key``: refilled with glTexSubImage2D when the shape
-        repeats (faster than a new texture, see docs/postfx.md, "How fast, and why"). The texture holds ``array`` until the next upload under the same key (GL orders
-        that upload after every pass drawn before it)."""
+        repeats (faster than a new texture, see docs/postfx.md, "How fast, and why"). The texture holds
+        ``array`` until the next upload under the same key (GL orders that upload after every pass drawn
+        before it)."""
         h, w = array.shape[:2]
         channels = 1 if array.ndim == 2 else array.shape[2]
         tex, shape = self.persistent.get(key, (None, None))
@@ -298,8 +299,9 @@ class Context:
 
         glReadPixels of RGBA into a host array kept from call to call (RGBA32F to RGBA is a copy in Mesa,
         where RGB converts, and a new array would fault its pages in on every call), then the RGB
-        channels into the result in one loop (faster than NumPy's clip of the strided view). A row-blocked target (``row_blocked``: layer k holds rows k, k + L,
-        ...) is read layer by layer, each row landing in its place (GL_PACK_ROW_LENGTH of L rows)."""
+        channels into the result in one loop (faster than NumPy's clip of the strided view). A row-blocked
+        target (``row_blocked``: layer k holds rows k, k + L, ...) is read layer by layer, each row landing
+        in its place (GL_PACK_ROW_LENGTH of L rows)."""
         t0 = time.perf_counter()
         width = tex.GetWidth()
         height = self.row_blocked.pop(id(tex), None)
