@@ -62,6 +62,9 @@ from postfx.lens_flare import LensFlare  # noqa: E402
 from postfx.sensor_noise import SensorNoise  # noqa: E402
 from postfx.sharpen import Sharpen  # noqa: E402
 from postfx.tonemap import Tonemap  # noqa: E402
+from tissuerender import load_scene, make_plan  # noqa: E402
+from tissuerender.pipeline import build_world, render_hdr  # noqa: E402
+from tissuerender.stages import StageRecorder  # noqa: E402
 
 W, H = 640, 480
 CHAIN = [("depth_of_field", DepthOfField(focus_distance=0.1, aperture=0.002, max_radius_px=8.0)),
@@ -90,16 +93,10 @@ def synthetic_frame():
 
 def rendered_frame(refresh: bool):
     """liver_probe's HDR and depth at 640x480 (cached by the scene file's hash), its lens and chain."""
-    from tissuerender import load_scene
-
     scene = load_scene(SCENE)
     digest = hashlib.sha256(SCENE.read_bytes()).hexdigest()[:12]
     cache = Path(tempfile.gettempdir()) / f"tissuerender_postfx_liver_probe_{W}x{H}_{digest}.npz"
     if refresh or not cache.exists():
-        from tissuerender import make_plan
-        from tissuerender.pipeline import build_world, render_hdr
-        from tissuerender.stages import StageRecorder
-
         plan = make_plan(scene)
         world = build_world(scene, plan, StageRecorder())
         result, _ = render_hdr(world, scene, plan, StageRecorder(), 0.0, scene.seed, W, H)

@@ -16,8 +16,8 @@ from postfx.errors import OSMesaUnavailable
 from postfx.gl import shaders
 from postfx.gl.library import (GL_ALL_BARRIER_BITS, GL_FLOAT, GL_FORMATS, GL_PACK_ALIGNMENT, GL_PACK_ROW_LENGTH,
                                GL_PIXEL_PACK_BUFFER, GL_PIXEL_UNPACK_BUFFER, GL_QUERY_RESULT, GL_RENDERER, GL_RGBA,
-                               GL_RGBA32F, GL_TEXTURE_2D, GL_TIMESTAMP, GL_UNPACK_ALIGNMENT, GL_WRITE_ONLY, canonical,
-                               gl_library, library_available, set_uniform)
+                               GL_RGBA32F, GL_TEXTURE_2D, GL_TIMESTAMP, GL_UNPACK_ALIGNMENT, GL_WRITE_ONLY, GLCalls,
+                               canonical, library_available, set_uniform)
 
 
 @njit(cache=True)
@@ -76,42 +76,22 @@ class Context:
         self.quads = {}
         # VTK wraps no image-store calls and reads back through a pixel buffer: these calls come straight
         # from the library VTK uses (its context is current on this thread)
-        self.gl = gl_library()
-        self.gl.glBindImageTexture.argtypes = [ctypes.c_uint, ctypes.c_uint, ctypes.c_int, ctypes.c_ubyte,
-                                               ctypes.c_int, ctypes.c_uint, ctypes.c_uint]
-        self.gl.glMemoryBarrier.argtypes = [ctypes.c_uint]
-        self.gl.glBindBuffer.argtypes = [ctypes.c_uint, ctypes.c_uint]
-        self.gl.glPixelStorei.argtypes = [ctypes.c_uint, ctypes.c_int]
-        self.gl.glReadPixels.argtypes = [ctypes.c_int] * 4 + [ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p]
-        self.gl.glTexSubImage2D.argtypes = [ctypes.c_uint, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int,
-                                            ctypes.c_int, ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p]
-        # GL 3.3 calls that libOSMesa does not export by name: through its OSMesaGetProcAddress
-        address = self.gl.OSMesaGetProcAddress
-        address.restype, address.argtypes = ctypes.c_void_p, [ctypes.c_char_p]
-
-        def proc(name, *argtypes):
-            pointer = address(name.encode())
-            if not pointer:
-                raise OSMesaUnavailable(f"libOSMesa has no {name} (OpenGL 3.3 is needed)")
-            return ctypes.CFUNCTYPE(None, *argtypes)(pointer)
-
-        self._query_counter = proc("glQueryCounter", ctypes.c_uint, ctypes.c_uint)
-        self._query_result = proc("glGetQueryObjectui64v", ctypes.c_uint, ctypes.c_uint, ctypes.POINTER(ctypes.c_uint64))
-        self._gen_queries = proc("glGenQueries", ctypes.c_int, ctypes.POINTER(ctypes.c_uint))
-        get_int64 = proc("glGetInteger64v", ctypes.c_uint, ctypes.POINTER(ctypes.c_int64))
+        calls = GLCalls()
+        self.gl = calls.lib
+        self._query_counter, self._query_result, self._gen_queries = calls.query_counter, calls.query_result, calls.gen_queries
         self.queries: list[int] = []
         # llvmpipe stamps with CLOCK_MONOTONIC, Python's monotonic clock: then an effect's seconds can start
         # at the chain's start on the CPU (the DoF's CPU steps count); checked, not assumed
         now, gl_now = time.monotonic_ns(), ctypes.c_int64()
-        get_int64(GL_TIMESTAMP, ctypes.byref(gl_now))
+        calls.get_int64(GL_TIMESTAMP, ctypes.byref(gl_now))
         self.shared_clock = abs(gl_now.value - now) < 5_000_000
-        self.gl.glGetString.restype, self.gl.glGetString.argtypes = ctypes.c_char_p, [ctypes.c_uint]
         self.renderer = (self.gl.glGetString(GL_RENDERER) or b"").decode(errors="replace")
         # imageStore results reach later passes' texture fetches after a glMemoryBarrier, which llvmpipe
         # (Mesa 22.3) implements as a full finish: this thread sleeps until the gather has run, and the
-        # rasterizer threads until it has queued the next pass. llvmpipe runs each pass (scene) after the one before it has
-        # finished on every thread, and its stores go straight to the texture's memory, so there the
-        # later passes read the stored values without it (tested: the same bits); other drivers get it.
+        # rasterizer threads until it has queued the next pass. llvmpipe runs each pass (scene) after the
+        # one before it has finished on every thread, and its stores go straight to the texture's memory,
+        # so there the later passes read the stored values without it (tested: the same bits); other
+        # drivers get it.
         self.barrier_after_stores = "llvmpipe" not in self.renderer
         # per-frame inputs of a fixed shape (the DoF's padded source): a host array and a texture kept
         # from chain to chain, refilled in place (no fresh pages to fault in, no texture allocation)

@@ -6,6 +6,8 @@ import ctypes
 
 import numpy as np
 
+from postfx.errors import OSMesaUnavailable
+
 GL_FLOAT = 0x1406
 GL_RGB = 0x1907
 GL_RGBA = 0x1908
@@ -42,6 +44,37 @@ def library_available() -> bool:
         except OSError:
             continue
     return False
+
+
+class GLCalls:
+    """The libOSMesa calls VTK does not wrap (image stores, memory barriers, reads and sub-uploads into
+    client memory), with their argument types, and the GL 3.3 query calls that libOSMesa does not export
+    by name, through its ``OSMesaGetProcAddress``. Valid while an OSMesa context is current."""
+
+    def __init__(self):
+        lib = self.lib = gl_library()
+        lib.glBindImageTexture.argtypes = [ctypes.c_uint, ctypes.c_uint, ctypes.c_int, ctypes.c_ubyte,
+                                           ctypes.c_int, ctypes.c_uint, ctypes.c_uint]
+        lib.glMemoryBarrier.argtypes = [ctypes.c_uint]
+        lib.glBindBuffer.argtypes = [ctypes.c_uint, ctypes.c_uint]
+        lib.glPixelStorei.argtypes = [ctypes.c_uint, ctypes.c_int]
+        lib.glReadPixels.argtypes = [ctypes.c_int] * 4 + [ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p]
+        lib.glTexSubImage2D.argtypes = [ctypes.c_uint, ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+                                        ctypes.c_int, ctypes.c_uint, ctypes.c_uint, ctypes.c_void_p]
+        lib.glGetString.restype, lib.glGetString.argtypes = ctypes.c_char_p, [ctypes.c_uint]
+        self.address = lib.OSMesaGetProcAddress
+        self.address.restype, self.address.argtypes = ctypes.c_void_p, [ctypes.c_char_p]
+        self.query_counter = self.proc("glQueryCounter", ctypes.c_uint, ctypes.c_uint)
+        self.query_result = self.proc("glGetQueryObjectui64v", ctypes.c_uint, ctypes.c_uint,
+                                      ctypes.POINTER(ctypes.c_uint64))
+        self.gen_queries = self.proc("glGenQueries", ctypes.c_int, ctypes.POINTER(ctypes.c_uint))
+        self.get_int64 = self.proc("glGetInteger64v", ctypes.c_uint, ctypes.POINTER(ctypes.c_int64))
+
+    def proc(self, name, *argtypes):
+        pointer = self.address(name.encode())
+        if not pointer:
+            raise OSMesaUnavailable(f"libOSMesa has no {name} (OpenGL 3.3 is needed)")
+        return ctypes.CFUNCTYPE(None, *argtypes)(pointer)
 
 
 class FloatArray(tuple):
