@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 
 import postfx  # noqa: E402
 from materials import get_preset  # noqa: E402
-from postfx.params import Tonemap  # noqa: E402
+from postfx.tonemap import Tonemap  # noqa: E402
 from tissuerender.golden import flip  # noqa: E402
 from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame  # noqa: E402
 from tissuerender.renderer.light import light_frame  # noqa: E402

@@ -26,7 +26,7 @@ Each figure is the median of several runs after one warm-up (compilation, contex
 timed chain starts after a 50 ms pause (PAUSE_S: numba's OpenMP workers stop spinning); the effects
 alone run back to back, each backend's runs together. ``--backends osmesa`` (or ``numpy``) times one
 backend in the process (no ratio keys). The osmesa chain runs with its keep-awake threads unless
-TISSUERENDER_GL_KEEP_AWAKE=0 (postfx/keep_awake.py; the "machine" string says which); their CPU time is
+TISSUERENDER_GL_KEEP_AWAKE=0 (postfx/gl/keep_awake.py; the "machine" string says which); their CPU time is
 in osmesa_cpu_ms_total.
 """
 from __future__ import annotations
@@ -49,9 +49,22 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 import postfx  # noqa: E402
-from postfx import keep_awake, osmesa  # noqa: E402
-from postfx.params import (Bloom, Blur, ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask,  # noqa: E402
-                           LensFlare, SensorNoise, Sharpen, Tonemap)
+from postfx.bloom import Bloom  # noqa: E402
+from postfx.blur import Blur  # noqa: E402
+from postfx.chromatic_aberration import ChromaticAberration  # noqa: E402
+from postfx.color_grade import ColorGrade  # noqa: E402
+from postfx.depth_of_field import DepthOfField  # noqa: E402
+from postfx.gl import keep_awake  # noqa: E402
+from postfx.gl.context import Context  # noqa: E402
+from postfx.gl.library import library_available  # noqa: E402
+from postfx.laparoscope_mask import LaparoscopeMask  # noqa: E402
+from postfx.lens_flare import LensFlare  # noqa: E402
+from postfx.sensor_noise import SensorNoise  # noqa: E402
+from postfx.sharpen import Sharpen  # noqa: E402
+from postfx.tonemap import Tonemap  # noqa: E402
+from tissuerender import load_scene, make_plan  # noqa: E402
+from tissuerender.pipeline import build_world, render_hdr  # noqa: E402
+from tissuerender.stages import StageRecorder  # noqa: E402
 
 W, H = 640, 480
 CHAIN = [("depth_of_field", DepthOfField(focus_distance=0.1, aperture=0.002, max_radius_px=8.0)),
@@ -80,16 +93,10 @@ def synthetic_frame():
 
 def rendered_frame(refresh: bool):
     """liver_probe's HDR and depth at 640x480 (cached by the scene file's hash), its lens and chain."""
-    from tissuerender import load_scene
-
     scene = load_scene(SCENE)
     digest = hashlib.sha256(SCENE.read_bytes()).hexdigest()[:12]
     cache = Path(tempfile.gettempdir()) / f"tissuerender_postfx_liver_probe_{W}x{H}_{digest}.npz"
     if refresh or not cache.exists():
-        from tissuerender import make_plan
-        from tissuerender.pipeline import build_world, render_hdr
-        from tissuerender.stages import StageRecorder
-
         plan = make_plan(scene)
         world = build_world(scene, plan, StageRecorder())
         result, _ = render_hdr(world, scene, plan, StageRecorder(), 0.0, scene.seed, W, H)
@@ -101,12 +108,10 @@ def rendered_frame(refresh: bool):
     return data["hdr"], data["depth"], postfx.Lens(scene.camera.fov_deg, W, H), chain
 
 
-# Every timed run starts after this pause. numba's OpenMP workers (libgomp) spin for several
-# milliseconds after each parallel region before they sleep, and an osmesa chain started right after
-# a numpy chain shared the two cores with them: 62.9 ms against 52.1 ms after a 50 ms pause and 50.8 ms
-# after another osmesa chain (same process, quiet machine; 49.9 ms right after numpy with
-# GOMP_SPINCOUNT=0), while the numpy chain took 41.6 / 39.2 ms after an osmesa chain / a pause. A
-# program uses one backend; the pause keeps one backend's idle workers out of the other's time.
+# Every timed run starts after this pause. numba's OpenMP workers (libgomp) spin for a while after each
+# parallel region before they sleep, and an osmesa chain started right after a numpy chain shared the
+# two cores with them. A program uses one backend; the pause keeps one backend's idle workers out of
+# the other's time (docs/postfx.md, "How fast, and why").
 PAUSE_S = 0.05
 
 
@@ -124,7 +129,7 @@ def time_chains(hdr, depth, lens, chain, backends, repeats):
     cpu: dict = {b: [] for b in backends}
     for r in range(repeats):
         # the order alternates: in one process a chain ran slower right after the other backend's chain
-        # than after its own (osmesa 43-49 vs 33-35 ms on the rendered frame, 2026-11-30 sessions)
+        # than after its own
         for backend in (backends if r % 2 == 0 else backends[::-1]):
             time.sleep(PAUSE_S)
             c0 = time.process_time()
@@ -136,7 +141,7 @@ def time_chains(hdr, depth, lens, chain, backends, repeats):
 def profile_passes(hdr, depth, lens, chain, repeats):
     """The osmesa chain pass by pass: each draw waits for the one before and for itself (so the sum is a
     little above the chain's own time), medians over ``repeats`` chains, in ms, keyed by pass and size."""
-    ctx = osmesa.Context.get()
+    ctx = Context.get()
     runs = []
     for r in range(repeats + 1):
         time.sleep(PAUSE_S)
@@ -185,7 +190,7 @@ def main() -> None:
     asked = [b.strip() for b in args.backends.split(",") if b.strip()]
     if not asked or set(asked) - {"numpy", "osmesa"}:
         parser.error("--backends takes numpy and/or osmesa")
-    backends = [b for b in ("numpy", "osmesa") if b in asked and (b == "numpy" or osmesa.library_available())]
+    backends = [b for b in ("numpy", "osmesa") if b in asked and (b == "numpy" or library_available())]
     result: dict = {}
     frames = {"": synthetic_frame(), "_rendered": rendered_frame(args.refresh_frame)}
     for suffix, (hdr, depth, lens, chain) in frames.items():

@@ -38,7 +38,7 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 import postfx  # noqa: E402
-from postfx.params import Tonemap  # noqa: E402
+from postfx.tonemap import Tonemap  # noqa: E402
 from tissuerender import load_scene, make_plan  # noqa: E402
 from tissuerender.golden import flip  # noqa: E402
 from tissuerender.pipeline import build_world, render_hdr  # noqa: E402

@@ -5,8 +5,10 @@ import numpy as np
 import pytest
 
 import postfx
-from postfx import effects
-from postfx.params import ChromaticAberration, DepthOfField, LaparoscopeMask, Tonemap
+from postfx.chromatic_aberration import ChromaticAberration, chromatic_aberration
+from postfx.depth_of_field import DepthOfField, depth_of_field
+from postfx.laparoscope_mask import LaparoscopeMask, mask_weights
+from postfx.tonemap import Tonemap, tonemap
 
 LENS = postfx.Lens(fov_deg=60.0, width=128, height=96)
 
@@ -20,7 +22,7 @@ def test_chromatic_aberration_shifts_channels_by_the_expected_pixels():
     img = np.zeros((96, 128, 3), np.float32)
     img[47:49, 99:101] = 1.0  # white dot centred 36 px right of the optical centre (64, 48)
     k = 0.05
-    out = effects.chromatic_aberration(img, ChromaticAberration(strength_r=k, strength_g=0.0, strength_b=-k))
+    out = chromatic_aberration(img, ChromaticAberration(strength_r=k, strength_g=0.0, strength_b=-k))
     r, g, b = (_centroid(out[..., c]) for c in range(3))
     assert r[0] - 64.0 == pytest.approx(36.0 * (1 + k), abs=0.05)
     assert g[0] - 64.0 == pytest.approx(36.0, abs=1e-4)
@@ -32,7 +34,7 @@ def test_depth_of_field_leaves_the_focus_plane_unchanged():
     rng = np.random.default_rng(0)
     img = rng.random((96, 128, 3)).astype(np.float32)
     depth = np.full((96, 128), 0.1, np.float32)
-    out = effects.depth_of_field(img, depth, DepthOfField(focus_distance=0.1, aperture=0.002), LENS.fov_deg)
+    out = depth_of_field(img, depth, DepthOfField(focus_distance=0.1, aperture=0.002), LENS.fov_deg)
     assert np.array_equal(out, img)
 
 
@@ -43,7 +45,7 @@ def test_out_of_focus_point_becomes_a_disc_of_the_analytic_coc():
     coc_diameter_px = 2 * A * f * abs(d - df) / (d * (df - f)) * 128 / (2 * f * np.tan(np.radians(30)))
     img = np.zeros((96, 128, 3), np.float32)
     img[48, 64] = 1000.0
-    out = effects.depth_of_field(img, depth, p, LENS.fov_deg)
+    out = depth_of_field(img, depth, p, LENS.fov_deg)
     lit = out[..., 0] > 1e-3
     diameter = 2.0 * np.sqrt(lit.sum() / np.pi)
     assert diameter == pytest.approx(coc_diameter_px, rel=0.08)
@@ -56,13 +58,13 @@ def test_sharp_foreground_does_not_bleed_onto_the_background():
     depth = np.full((96, 128), 1.0, np.float32)  # far background, blurred
     img[:, :64] = 1.0
     depth[:, :64] = 0.05  # in-focus bright foreground on the left half
-    out = effects.depth_of_field(img, depth, p, LENS.fov_deg)
+    out = depth_of_field(img, depth, p, LENS.fov_deg)
     assert out[:, 66:, 0].max() < 1e-6  # nothing of the sharp foreground reaches the background
 
 
 def test_mask_has_the_set_radius_and_softness():
     p = LaparoscopeMask(radius=0.8, softness=0.1, vignette=0.0)
-    w = effects.mask_weights(200, 200, p)
+    w = mask_weights(200, 200, p)
     row = w[100]  # through the centre; rho = |x - 100| / 100
     rho = np.abs(np.arange(200) + 0.5 - 100.0) / 100.0
     assert np.all(row[rho <= 0.75 - 1e-9] == 1.0) and np.all(row[rho >= 0.85 + 1e-9] == 0.0)
@@ -71,14 +73,14 @@ def test_mask_has_the_set_radius_and_softness():
 
 
 def test_vignette_darkens_towards_the_rim():
-    w = effects.mask_weights(200, 200, LaparoscopeMask(radius=1.0, softness=0.0, vignette=0.4))
+    w = mask_weights(200, 200, LaparoscopeMask(radius=1.0, softness=0.0, vignette=0.4))
     assert w[100, 100] > 0.99 and w[100, 10] == pytest.approx(1 - 0.4 * 0.895**2, abs=0.01)
 
 
 @pytest.mark.parametrize("curve", ["aces", "reinhard", "clamp"])
 def test_tonemap_is_monotonic_and_bounded(curve):
     x = np.linspace(0.0, 100.0, 20001, dtype=np.float32).reshape(1, -1, 1).repeat(3, axis=2)
-    y = effects.tonemap(x, Tonemap(curve=curve))[0, :, 0]
+    y = tonemap(x, Tonemap(curve=curve))[0, :, 0]
     assert np.all(np.diff(y) >= 0.0) and y[0] == 0.0 and y.max() <= 1.0
 
 

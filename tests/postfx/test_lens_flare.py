@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from postfx.lens_flare import lens_flare
-from postfx.params import LensFlare
+from postfx.lens_flare import LensFlare, lens_flare
 
 H, W = 240, 320
 CENTRE = np.array([160.0, 120.0])  # optical centre [0.5, 0.5] in pixels (x, y)

@@ -164,7 +164,7 @@ def scene_from_data(data: dict, path, sha256: str) -> Scene:
     except ValidationError as e:
         raise _validation_error(path, e) from None
     try:
-        effects = schema.effects_model().model_validate(parsed.effects)
+        effects = schema.Effects.model_validate(parsed.effects)
     except ValidationError as e:
         raise _validation_error(path, e, "effects") from None
     scene = Scene(

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+
+from postfx.registry import EFFECTS
 
 from sim.integrators import REGISTRY
 from sim.integrators.chainmail import ChainMailSceneSettings
@@ -280,7 +282,7 @@ RENDER_FLAGS = ("shadows", "sss", "ao", "mucus_reflection", "motion")
 
 
 class EffectsBase(Strict):
-    """Renderer switches; the post-effect tables are added from ``postfx.EFFECTS`` (see ``effects_model``)."""
+    """Renderer switches; ``Effects`` adds the post-effect tables from ``postfx.registry``."""
 
     shadows: bool = False
     sss: bool = False
@@ -315,17 +317,7 @@ class EffectsBase(Strict):
         return self
 
 
-_EFFECTS_MODEL = None
-
-
-def effects_model():
-    """``EffectsBase`` extended with one optional table per post-effect that ``postfx`` provides."""
-    global _EFFECTS_MODEL
-    if _EFFECTS_MODEL is None:
-        from pydantic import create_model
-
-        import postfx
-
-        fields = {name: (model | None, None) for name, model in postfx.EFFECTS.items()}
-        _EFFECTS_MODEL = create_model("Effects", __base__=EffectsBase, **fields)
-    return _EFFECTS_MODEL
+# The [effects] table: EffectsBase plus one optional [effects.NAME] table per post-effect of the registry,
+# validated by that effect's own parameter model (declared once, in its postfx module).
+Effects = create_model("Effects", __base__=EffectsBase,
+                       **{name: (model | None, None) for name, model in EFFECTS.items()})

@@ -5,11 +5,22 @@ import numpy as np
 import pytest
 
 import postfx
-from postfx import effects, osmesa
-from postfx.params import (EFFECTS, Bloom, Blur, ChromaticAberration, ColorGrade, DepthOfField, LaparoscopeMask, LensFlare,
-                           SensorNoise, Sharpen, Tonemap)
+from postfx import depth_of_field, pointwise
+from postfx.bloom import Bloom
+from postfx.blur import Blur
+from postfx.chromatic_aberration import ChromaticAberration
+from postfx.color_grade import ColorGrade
+from postfx.depth_of_field import DepthOfField
+from postfx.gl import chain as gl_chain
+from postfx.gl import context, library
+from postfx.laparoscope_mask import LaparoscopeMask
+from postfx.lens_flare import LensFlare
+from postfx.registry import EFFECTS
+from postfx.sensor_noise import SensorNoise
+from postfx.sharpen import Sharpen
+from postfx.tonemap import Tonemap
 
-needs_osmesa = pytest.mark.skipif(not osmesa.library_available(),
+needs_osmesa = pytest.mark.skipif(not library.library_available(),
                                   reason="libOSMesa missing: install the Debian package libosmesa6")
 
 H, W = 120, 160
@@ -71,8 +82,8 @@ def test_full_chain_agrees_and_auto_prefers_osmesa():
 
 
 def test_missing_osmesa_names_the_package_and_auto_falls_back(monkeypatch):
-    monkeypatch.setattr(osmesa, "library_available", lambda: False)
-    monkeypatch.setattr(osmesa.Context, "_instance", None)
+    monkeypatch.setattr(context, "library_available", lambda: False)
+    monkeypatch.setattr(context.Context, "_instance", None)
     hdr, depth = _inputs()
     chain = [("tonemap", Tonemap())]
     with pytest.raises(postfx.OSMesaUnavailable, match="libosmesa6"):
@@ -93,9 +104,9 @@ def test_blocked_dof_gather_matches_numpy_on_odd_sizes_and_random_coc(shape):
     p = DepthOfField(focus_distance=0.1, aperture=0.002, max_radius_px=6.0)
     lens = postfx.Lens(70.0, w, h)
     if w == 90:
-        assert osmesa.dof_tiles(effects.dof_reach2(effects.coc_radius_px(depth, p, 70.0, w)))[:, 0].max() == 0.25
+        assert depth_of_field.dof_tiles(depth_of_field.dof_reach2(depth_of_field.coc_radius_px(depth, p, 70.0, w)))[:, 0].max() == 0.25
     ref = postfx.apply_effect("depth_of_field", hdr, depth, p, lens)
-    gpu = osmesa.apply_effect("depth_of_field", hdr, depth, p, lens)
+    gpu = gl_chain.apply_effect("depth_of_field", hdr, depth, p, lens)
     assert np.abs(ref - gpu).max() <= 1e-5 * np.abs(ref).max()
 
 
@@ -103,8 +114,8 @@ def test_dof_tiles_bound_every_source_that_reaches_the_tile():
     rng = np.random.default_rng(5)
     reach2 = (rng.random((40, 50)) ** 4 * 30.0 + 0.25).astype(np.float32)
     reach2[5, 7] = 100.25  # one wide disc (r = 10)
-    tiles = osmesa.dof_tiles(reach2)
-    tile = osmesa.DOF_TILE
+    tiles = depth_of_field.dof_tiles(reach2)
+    tile = depth_of_field.DOF_TILE
     assert tiles.shape == (3, 4)
     jq, iq = np.mgrid[0:40, 0:50]
     for ty in range(3):
@@ -122,8 +133,8 @@ def test_dof_tiles_bound_every_source_that_reaches_the_tile():
 def test_fused_pointwise_passes_equal_the_separate_passes():
     hdr, depth = _inputs()
     chain = [(n, CASES[n]) for n in postfx.DEFAULT_ORDER]
-    fused, seconds, _ = osmesa.run_chain(hdr, depth, chain, LENS, seed=3)
-    separate, separate_seconds, _ = osmesa.run_chain(hdr, depth, chain, LENS, seed=3, fuse=False)
+    fused, seconds, _ = gl_chain.run_chain(hdr, depth, chain, LENS, seed=3)
+    separate, separate_seconds, _ = gl_chain.run_chain(hdr, depth, chain, LENS, seed=3, fuse=False)
     assert "blur+sensor_noise+tonemap+color_grade" in seconds and "sharpen+laparoscope_mask" in seconds
     assert set(separate_seconds) == set(postfx.DEFAULT_ORDER)
     assert np.abs(fused - separate).max() <= 1e-6
@@ -144,7 +155,7 @@ def test_blocked_gaussian_matches_numpy_on_odd_sizes(sigma):
     for name, p in (("blur", Blur(sigma_px=sigma)), ("sharpen", Sharpen(amount=0.7, sigma_px=min(sigma, 8.0)))):
         x = img if name == "blur" else img / 4.0
         ref = postfx.apply_effect(name, x, None, p, lens)
-        gpu = osmesa.apply_effect(name, x, None, p, lens)
+        gpu = gl_chain.apply_effect(name, x, None, p, lens)
         assert np.abs(ref - gpu).max() <= 2e-6 * max(1.0, float(np.abs(ref).max()))
 
 
@@ -157,7 +168,7 @@ def test_numpy_pointwise_run_equals_the_effects_one_after_the_other(width):
     separate = hdr
     for name, p in run:
         separate = postfx.apply_effect(name, separate, depth, p, lens, seed=9).astype(np.float32)
-    assert np.array_equal(effects.pointwise_chain(hdr, run, seed=9), separate)  # to the bit
+    assert np.array_equal(pointwise.pointwise_chain(hdr, run, seed=9), separate)  # to the bit
     res = postfx.apply_chain(hdr, depth, [("blur", CASES["blur"]), *run], lens, backend="numpy", seed=9)
     assert res.fused == {"sensor_noise": ["tonemap", "color_grade", "laparoscope_mask"]}
     assert set(res.seconds) == {"blur", "sensor_noise"}
@@ -168,7 +179,7 @@ def test_numpy_pointwise_run_equals_the_effects_one_after_the_other(width):
 def test_a_repeated_pointwise_effect_starts_a_new_pass():
     hdr, depth = _inputs()
     chain = [("blur", CASES["blur"]), ("tonemap", Tonemap(exposure=-1.0)), ("tonemap", Tonemap(exposure=0.5, curve="reinhard"))]
-    assert [[n for n, _ in g] for g in osmesa.fused_groups(chain)] == [["blur", "tonemap"], ["tonemap"]]
+    assert [[n for n, _ in g] for g in gl_chain.fused_groups(chain)] == [["blur", "tonemap"], ["tonemap"]]
     ref = postfx.apply_chain(hdr, depth, chain, LENS, backend="numpy").image
     gpu = postfx.apply_chain(hdr, depth, chain, LENS, backend="osmesa").image
     assert np.abs(ref - gpu).max() < 1e-5
@@ -176,8 +187,8 @@ def test_a_repeated_pointwise_effect_starts_a_new_pass():
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_osmesa_reach2_kernel_equals_numpy_to_the_bit(dtype):
-    """osmesa.coc_reach2 (one numba loop) selects the gather's taps: it must give the very float32
-    reach2 of effects.dof_reach2(effects.coc_radius_px(...)), special depths included, and the tile maxima."""
+    """depth_of_field.coc_reach2 (one numba loop) selects the gather's taps: it must give the very float32
+    reach2 of depth_of_field.dof_reach2(depth_of_field.coc_radius_px(...)), special depths included, and the tile maxima."""
     rng = np.random.default_rng(13)
     h, w = 37, 53  # partial tiles on both axes
     depth = (rng.random((h, w)) * 0.4 - 0.02).astype(dtype)  # some at or behind the camera
@@ -185,13 +196,13 @@ def test_osmesa_reach2_kernel_equals_numpy_to_the_bit(dtype):
     for p, fov in ((DepthOfField(focus_distance=0.1, aperture=0.002, max_radius_px=8.0), 70.0),
                    (DepthOfField(focus_distance=0.0047, aperture=0.003, focal_length=0.0045, max_radius_px=64.0), 30.0),
                    (DepthOfField(), 75.0)):
-        ref = effects.dof_reach2(effects.coc_radius_px(depth, p, fov, w))
-        reach2, tiles = osmesa.coc_reach2(depth, p, fov, w)
+        ref = depth_of_field.dof_reach2(depth_of_field.coc_radius_px(depth, p, fov, w))
+        reach2, tiles = depth_of_field.coc_reach2(depth, p, fov, w)
         assert reach2.dtype == np.float32 and np.array_equal(reach2.view(np.uint32), ref.view(np.uint32))
         padded = np.full((48, 64), -1.0, np.float32)
         padded[:h, :w] = ref
         assert np.array_equal(tiles, padded.reshape(3, 16, 4, 16).max(axis=(1, 3)))
-        assert np.array_equal(osmesa.dilate_tiles(tiles, float(ref.max())), osmesa.dof_tiles(ref))
+        assert np.array_equal(depth_of_field.dilate_tiles(tiles, float(ref.max())), depth_of_field.dof_tiles(ref))
 
 
 @needs_osmesa
@@ -206,12 +217,12 @@ def test_dof_after_another_effect_builds_its_source_on_the_gl_side():
         ref = hdr
         for name, params in chain:
             ref = postfx.apply_effect(name, ref, depth, params, LENS)
-        gpu, _, _ = osmesa.run_chain(hdr, depth, chain, LENS)
+        gpu, _, _ = gl_chain.run_chain(hdr, depth, chain, LENS)
         assert np.abs(gpu - ref).max() <= 1e-5 * float(np.abs(ref).max())
     chain = [("depth_of_field", p), ("tonemap", CASES["tonemap"]), ("laparoscope_mask", CASES["laparoscope_mask"])]
-    fused, seconds, _ = osmesa.run_chain(hdr, depth, chain, LENS)  # the pointwise run drawn inside the gather
+    fused, seconds, _ = gl_chain.run_chain(hdr, depth, chain, LENS)  # the pointwise run drawn inside the gather
     assert list(seconds) == ["depth_of_field+tonemap+laparoscope_mask"]
-    separate, _, _ = osmesa.run_chain(hdr, depth, chain, LENS, fuse=False)
+    separate, _, _ = gl_chain.run_chain(hdr, depth, chain, LENS, fuse=False)
     assert np.abs(fused - separate).max() <= 1e-6
     ref = postfx.apply_chain(hdr, depth, chain, LENS, backend="numpy").image
     assert np.abs(np.clip(fused, 0.0, 1.0) - ref).max() <= 1e-5
@@ -232,7 +243,7 @@ def test_dof_source_reused_between_frames_keeps_each_frame_exact():
         depth = (0.05 + rng.random((h, w)) * 0.2).astype(np.float32)
         p = DepthOfField(focus_distance=0.1, aperture=0.002, max_radius_px=max_r)
         ref = postfx.apply_effect("depth_of_field", hdr, depth, p, lens)
-        gpu = osmesa.apply_effect("depth_of_field", hdr, depth, p, lens)
+        gpu = gl_chain.apply_effect("depth_of_field", hdr, depth, p, lens)
         assert np.abs(ref - gpu).max() <= 1e-5 * np.abs(ref).max()
 
 
@@ -244,16 +255,16 @@ def test_dof_stores_reach_the_next_pass_without_a_barrier_on_llvmpipe():
     hdr, depth = _inputs()
     chain = [("depth_of_field", CASES["depth_of_field"]), ("chromatic_aberration", CASES["chromatic_aberration"]),
              ("blur", CASES["blur"]), ("tonemap", Tonemap())]
-    ctx = osmesa.Context.get()
+    ctx = context.Context.get()
     if "llvmpipe" not in ctx.renderer:
         pytest.skip(f"renderer {ctx.renderer!r}: the barrier is kept")
     assert not ctx.barrier_after_stores
     try:
         ctx.barrier_after_stores = True
-        with_barrier, _, _ = osmesa.run_chain(hdr, depth, chain, LENS, seed=2)
+        with_barrier, _, _ = gl_chain.run_chain(hdr, depth, chain, LENS, seed=2)
     finally:
         ctx.barrier_after_stores = False
-    without, _, _ = osmesa.run_chain(hdr, depth, chain, LENS, seed=2)
+    without, _, _ = gl_chain.run_chain(hdr, depth, chain, LENS, seed=2)
     assert np.array_equal(with_barrier, without)
     ref = postfx.apply_chain(hdr, depth, chain, LENS, backend="numpy", seed=2).image
     assert np.abs(np.clip(without, 0.0, 1.0) - ref).max() < 1e-3
@@ -261,20 +272,16 @@ def test_dof_stores_reach_the_next_pass_without_a_barrier_on_llvmpipe():
 
 @needs_osmesa
 @pytest.mark.osmesa
-def test_effect_seconds_come_from_gl_timestamps_and_add_up_to_the_chain():
-    """The passes are queued without a wait per effect; each effect's seconds are the GL timestamp
-    differences, so they are positive, and with the read-back they make up the chain's total (the
-    first effect measured from the chain's start when llvmpipe's clock is the monotonic one)."""
+def test_effect_seconds_are_keyed_by_the_fused_groups():
+    """The passes are queued without a wait per effect; each group of fused effects gets the difference
+    of its GL timestamps, under the names of its effects joined by "+" (no assertion on the figures:
+    issue 16, no timing assertions in tests)."""
     hdr, depth = _inputs()
     chain = [(n, CASES[n]) for n in postfx.DEFAULT_ORDER]
-    osmesa.run_chain(hdr, depth, chain, LENS)  # compiles
-    _, seconds, total = osmesa.run_chain(hdr, depth, chain, LENS)
+    _, seconds, total = gl_chain.run_chain(hdr, depth, chain, LENS)
     assert list(seconds) == ["depth_of_field", "chromatic_aberration", "lens_flare", "bloom",
                              "blur+sensor_noise+tonemap+color_grade", "sharpen+laparoscope_mask"]
-    assert all(v > 0.0 for v in seconds.values())
-    assert sum(seconds.values()) <= total
-    if osmesa.Context.get().shared_clock:
-        assert sum(seconds.values()) >= 0.5 * total  # the read-back is the only part outside the effects
+    assert all(np.isfinite(v) for v in [*seconds.values(), total])
 
 
 @needs_osmesa
@@ -291,7 +298,7 @@ def test_row_blocked_last_pass_is_read_back_in_place_and_its_target_reused_clean
         ref = postfx.apply_chain(img, None, chain, lens, backend="numpy").image
         gpu = postfx.apply_chain(img, None, chain, lens, backend="osmesa").image
         assert np.abs(ref - gpu).max() <= 2e-6
-    assert not osmesa.Context.get().row_blocked  # every row-blocked target was read back or released
+    assert not context.Context.get().row_blocked  # every row-blocked target was read back or released
     # a row-blocked blur read by a sharpen that is not last (its unsharp mask fetches the blocked rows,
     # one output per fragment), and Gaussians of larger radius on either side (plain images between)
     img = (rng.random((13, 21, 3)) * 2.0).astype(np.float32)
@@ -317,10 +324,10 @@ def test_dof_gather_stores_every_output(h, w):
     depth = (0.05 + 0.2 * rng.random((h, w))).astype(np.float32)
     lens = postfx.Lens(70.0, w, h)
     p = DepthOfField(focus_distance=0.1, aperture=0.003, max_radius_px=6.0)
-    ctx = osmesa.Context.get()
+    ctx = context.Context.get()
     nan = ctx.upload(np.full((h, w, 3), np.nan, np.float32))
     ctx.release(ctx.draw("copy", {"img": nan}, {}, w, h))  # the next w x h target holds NaN
-    gpu, _, _ = osmesa.run_chain(img, depth, [("depth_of_field", p)], lens)
+    gpu, _, _ = gl_chain.run_chain(img, depth, [("depth_of_field", p)], lens)
     ref = postfx.apply_effect("depth_of_field", img, depth, p, lens)
     assert np.isfinite(gpu).all()
     assert np.abs(gpu - ref).max() <= 1e-5 * float(np.abs(ref).max())

@@ -1,24 +1,21 @@
 """Keep the CPUs awake while llvmpipe runs a chain: idle-priority spinning threads.
 
 llvmpipe's rasterizer threads sleep on a semaphore or a barrier between the passes of a chain, and the
-calling thread sleeps while it waits for them: about 100 sleeps per chain of the benchmark
-(``voluntary_ctxt_switches`` in /proc: 28-46 per rasterizer thread, 30-36 for the calling thread), where
-numba's OpenMP workers, which spin between parallel regions, sleep none in the NumPy backend's chain. On
-a virtual machine a sleeping thread's vCPU halts, and waking it goes through the hypervisor. On this
-2-vCPU VM (KVM, guest halt polling off), same process, 28 rounds in rotating order: the rendered
-benchmark frame 42.6 -> 37.4 ms (median of the paired ratios 0.865), the synthetic one 43.3 -> 40.5 ms
-(0.984). Spinning on a plain load instead of calling ``sched_yield`` gave 0.874 / 0.978, and starting the
-threads without waiting for them to spin 0.91 / 0.97.
+calling thread sleeps while it waits for them (``voluntary_ctxt_switches`` in /proc shows dozens per
+chain), where numba's OpenMP workers, which spin between parallel regions, sleep none in the NumPy
+backend's chain. On a virtual machine a sleeping thread's vCPU halts, and waking it goes through the
+hypervisor. Whether these threads gain beyond the machine's noise is measured in docs/postfx.md, "How
+fast, and why"; issue 15 item 7 removes them unless it does.
 
 The threads run with ``SCHED_IDLE``: the kernel runs them only on a CPU that has nothing else to run and
 preempts them at once when a normal thread wakes there, so they take no time from llvmpipe, from this
 process or from other programs. They spin only inside ``KeepAwake`` (a chain): an atomic load of a flag
 (with the x86 ``pause`` hint) and a ``sched_yield`` per turn; otherwise they wait on a condition. Where
 ``SCHED_IDLE`` cannot be set they do nothing (spinning at normal priority would compete with llvmpipe).
-When other programs keep every CPU busy the threads do not run at all, and a chain waits at most 0.5 ms
-for them (rendered frame with two busy loops running: 0.991 of the time without the threads). Set the
-environment variable ``TISSUERENDER_GL_KEEP_AWAKE=0`` to switch them off. Their CPU time counts
-in the process's CPU time (the benchmark's ``osmesa_cpu_ms_total``).
+When other programs keep every CPU busy the threads do not run at all, and a chain waits only briefly
+for them to start. Set the environment variable ``TISSUERENDER_GL_KEEP_AWAKE=0`` to switch them off:
+that changes nothing but speed (the same pixels, tested). Their CPU time counts in the process's CPU
+time (the benchmark's ``osmesa_cpu_ms_total``).
 """
 from __future__ import annotations
 
@@ -28,7 +25,9 @@ import platform
 import threading
 
 import numpy as np
+from llvmlite import ir
 from numba import njit, types
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 ENV = "TISSUERENDER_GL_KEEP_AWAKE"
@@ -44,9 +43,6 @@ def _load_relaxed(typingctx, flag):
         return None
 
     def codegen(context, builder, sig, args):
-        from llvmlite import ir
-        from numba.core import cgutils
-
         if _X86:
             pause = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), []),
                                                    "llvm.x86.sse2.pause")
@@ -64,8 +60,6 @@ def _call(typingctx, address):
         return None
 
     def codegen(context, builder, sig, args):
-        from llvmlite import ir
-
         fnty = ir.FunctionType(ir.IntType(32), [])
         builder.call(builder.inttoptr(args[0], fnty.as_pointer()), [])
         return context.get_dummy_value()
@@ -162,9 +156,8 @@ class KeepAwake:
             self.round += 1
             self.cond.notify_all()
             # the threads need the GIL to reach the spin, and GL calls may hold it for a long time: give them
-            # a moment (~0.1 ms on an idle machine; on a busy one they would not run anyway, and a longer
-            # wait showed: with both CPUs taken by other programs, 2 ms here and 2 ms in __exit__ made the
-            # rendered chain 6 % slower than without the threads)
+            # a moment (on a busy machine they would not run anyway, and a longer wait here and in __exit__
+            # made the chain slower than without the threads)
             self.cond.wait_for(lambda: self.spinning == sum(self.idle_priority), timeout=0.0005)
         return self
 
