@@ -76,7 +76,7 @@ def test_interrupted_render_keeps_finished_frames_and_leaves_no_partial_file(sce
 
     scene_dict["output"]["frames"] = 3
     scene = load_scene(write_scene(scene_dict))
-    real = pipeline._write_png
+    real = pipeline.write_png
     calls = {"n": 0}
 
     def flaky(path, image):
@@ -85,14 +85,14 @@ def test_interrupted_render_keeps_finished_frames_and_leaves_no_partial_file(sce
             raise KeyboardInterrupt
         real(path, image)
 
-    monkeypatch.setattr(pipeline, "_write_png", flaky)
+    monkeypatch.setattr(pipeline, "write_png", flaky)
     out = tmp_path / "out"
     with pytest.raises(KeyboardInterrupt):
         tissuerender.render(scene, out, progress=False)
     assert sorted(p.name for p in out.iterdir()) == ["frame_0001.png", "manifest.json"]
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["complete"] is False and manifest["frames_done"] == 1
-    monkeypatch.setattr(pipeline, "_write_png", real)
+    monkeypatch.setattr(pipeline, "write_png", real)
     resumed = tissuerender.render(scene, out, resume=True, progress=False)
     assert [p.name for p in resumed.written] == ["frame_0002.png", "frame_0003.png"]
 

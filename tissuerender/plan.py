@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import materials
+import postfx
 from tissuerender.scene import Scene
 
 # integrators that evaluate the material's Prony series (XPBD: Maxwell branches, sim.xpbd_prony) / fibre
@@ -72,8 +74,6 @@ def motion_sources(scene: Scene) -> list[str]:
 
 
 def make_plan(scene: Scene) -> Plan:
-    import materials
-
     run: list[Stage] = []
     skip: list[Stage] = []
 
@@ -129,8 +129,6 @@ def make_plan(scene: Scene) -> Plan:
            "effects.mucus_reflection = false")
     decide("shade", True, f"area light, {scene.light.samples} samples ({scene.light.sampling})", "")
     chain = scene.effect_chain()
-    import postfx
-
     for name in postfx.EFFECTS:
         listed = any(n == name for n, _ in chain)
         decide(f"postfx.{name}", listed, f"effects.{name} ({eff.backend} backend)", "not listed in effects")

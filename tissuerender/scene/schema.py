@@ -10,12 +10,13 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from tissuerender.scene.shapes import SHAPES
+
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Vec2Pos = Annotated[list[Annotated[float, Field(gt=0.0)]], Field(min_length=2, max_length=2)]
 RGB = Annotated[list[Annotated[float, Field(ge=0.0, le=1e6)]], Field(min_length=3, max_length=3)]
 Length = Annotated[float, Field(gt=0.0, le=1e3)]
 
-SHAPES = ("box", "beam", "cube", "cylinder", "slab", "liver", "kidney")
 INTEGRATORS = ("xpbd", "ebm", "cnn", "cnn_chainmail", "explicit", "reference", "none")
 FORMATS = ("png", "hdr_npy", "vtu")
 AXES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
