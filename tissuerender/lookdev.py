@@ -336,10 +336,9 @@ def _cmd_lookdev(args) -> int:
     images, stats = render_cells(cells, args.shape, args.scene, _resolution(args.resolution), args.samples,
                                  args.exposure, args.frame)
     sheet, strip = contact_sheet(images, [c.label for c in cells], rows, cols)
-    keys = ("albedo", "roughness", "ior", "k_sss", "sigma", "sss_colour")
     report = {"materials": args.material, "stage": args.scene or args.shape, "rows": rows, "columns": cols,
               "cell_size": [int(images[0].shape[1]), int(images[0].shape[0])], "label_px": strip,
-              "preset_optics": {m: {k: getattr(materials.get_preset(m).optics, k) for k in keys} for m in args.material},
+              "preset_optics": {m: {k: getattr(materials.get_preset(m).optics, k) for k in OVERRIDABLE} for m in args.material},
               "set": fixed, "cells": stats}
     side = _write_outputs(Path(args.out), sheet, report)
     if not args.quiet:
@@ -360,7 +359,7 @@ def add_cli(subparsers) -> None:
         description="Render MATERIAL(s) under the laparoscope light; --set replaces optical values, --sweep varies "
                     "one (columns) or two (columns, rows); several materials are rows; writes a labelled contact sheet and a JSON report.")
     p.add_argument("material", nargs="+",
-                   help="material preset(s): liver, kidney, colon_mucosa, fat, fascia, peritoneum, plastic (several: a row each)")
+                   help=f"material preset(s): {', '.join(materials.PRESET_NAMES)} (several: a row each)")
     p.add_argument("-o", "--out", default="lookdev.png", help="contact sheet (.png); the report goes next to it (.json)")
     p.add_argument("--shape", choices=SHAPES, default="sphere", help="the built-in stage's object (default: sphere)")
     p.add_argument("--scene", help="use this scene as the stage: every object made of MATERIAL gets the values")

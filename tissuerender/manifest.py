@@ -10,7 +10,7 @@ from tissuerender.plan import Plan
 from tissuerender.scene import Scene
 from tissuerender.stages import StageRecorder
 
-PACKAGES = ("tissuerender", "numpy", "numba", "scipy", "vtk", "pyvista", "meshio", "trimesh", "pillow", "pydantic")
+PACKAGES = ("tissuerender", "numpy", "numba", "scipy", "vtk", "meshio", "trimesh", "pillow", "pydantic")
 
 
 def package_versions() -> dict[str, str]:

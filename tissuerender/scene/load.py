@@ -29,7 +29,6 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 
 MAX_TETS = 400_000
 MAX_SIM_STEPS = 2_000_000
-SECTIONS = ("scene", "objects", "simulation", "tools", "camera", "light", "effects", "output")
 
 
 class SceneFile(BaseModel):

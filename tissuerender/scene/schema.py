@@ -15,7 +15,6 @@ from tissuerender.scene.shapes import SHAPES
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Vec2Pos = Annotated[list[Annotated[float, Field(gt=0.0)]], Field(min_length=2, max_length=2)]
 RGB = Annotated[list[Annotated[float, Field(ge=0.0, le=1e6)]], Field(min_length=3, max_length=3)]
-Length = Annotated[float, Field(gt=0.0, le=1e3)]
 
 INTEGRATORS = ("xpbd", "ebm", "cnn", "cnn_chainmail", "explicit", "reference", "none")
 FORMATS = ("png", "hdr_npy", "vtu")
@@ -329,9 +328,6 @@ class Output(Strict):
     formats: Annotated[list[Literal[FORMATS]], Field(min_length=1)] = ["png"]  # type: ignore[valid-type]
     supersampling: Annotated[int, Field(ge=1, le=8)] = 1
     jitter: bool = True
-
-
-RENDER_FLAGS = ("shadows", "sss", "ao", "mucus_reflection", "motion")
 
 
 class EffectsBase(Strict):
