@@ -250,7 +250,7 @@ def _object_mask(result, scene, idx: list[int]) -> np.ndarray:
     depth, material = result.gbuffer["depth"], result.gbuffer["material_id"]
     index = np.full(depth.shape, -1, np.int64)
     index[np.isfinite(depth)] = material
-    # render objects: bodies first, then static surfaces, then tools (tissuerender.pipeline.render_objects)
+    # render objects: bodies first, then static surfaces, then tools (tissuerender.render_inputs.render_objects)
     order = [i for i, o in enumerate(scene.objects) if o.kind == "body"]
     order += [i for i, o in enumerate(scene.objects) if o.kind == "surface"]
     wanted = np.isin(index, [k for k, i in enumerate(order) if i in idx])

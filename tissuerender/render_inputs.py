@@ -34,7 +34,7 @@ def light_for(scene: Scene) -> AreaLight:
 def settings_for(scene: Scene, seed: int) -> RenderSettings:
     e = scene.effects
     return RenderSettings(shadows=e.shadows, sss=e.sss, sss_thickness=e.sss_thickness, ao=e.ao, mucus_reflection=e.mucus_reflection,
-                          light_samples=scene.light.samples, supersampling=scene.output.supersampling,
+                          supersampling=scene.output.supersampling,
                           jitter=scene.output.jitter,
                           seed=seed, motion=e.motion, ambient=tuple(e.ambient), ao_distance=e.ao_distance,
                           ao_samples=e.ao_samples, environment_up=tuple(e.environment_up),
