@@ -131,8 +131,6 @@ def welch_t_test(mean_ref, var_ref, n_ref, mean_new, var_new, n_new, var_floor=1
 
 
 def _read_png(path: Path) -> np.ndarray:
-    from PIL import Image
-
     if not path.is_file():
         raise UserError(f"{path}: stored golden image missing; run `tissuerender golden update {path.parent}`")
     return np.asarray(Image.open(path).convert("RGB"))
