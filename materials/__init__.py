@@ -6,10 +6,10 @@
 """
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 
 from materials.mechanics import MECHANICS, Mechanics
+from materials.optics import OPTICS, OpticalMaterial
 
 PRESET_NAMES: tuple[str, ...] = tuple(MECHANICS)
 
@@ -20,9 +20,9 @@ class MaterialPreset:
     mechanics: Mechanics
 
     @property
-    def optics(self):
-        """The optical description, loaded on first use (only rendering needs it)."""
-        return importlib.import_module("materials.optics").OPTICS[self.name]
+    def optics(self) -> OpticalMaterial:
+        """The optical description (``materials.optics``)."""
+        return OPTICS[self.name]
 
 
 def get_preset(name: str) -> MaterialPreset:

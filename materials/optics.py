@@ -1,7 +1,7 @@
 """Optical halves of the material presets: what the renderer needs to know about a tissue.
 
-The theses give no optical constants (DESIGN.md); these are design choices taken from the tissue-
-optics literature, each cited:
+The theses give no optical constants (docs/design.md, "Qian §6.2.3: optical constants"); these are
+design choices taken from the tissue-optics literature, each cited:
 
 - [Jacques13] S. L. Jacques, "Optical properties of biological tissues: a review", Phys. Med. Biol.
   58 (2013) R37. Reduced scattering mu_s'(lambda) = a (lambda / 500 nm)^-b with, for soft tissue,
@@ -27,6 +27,10 @@ from __future__ import annotations
 import dataclasses
 import functools
 from dataclasses import dataclass
+
+import numpy as np
+
+from materials.textures import bake_layer
 
 
 @dataclass(frozen=True)
@@ -89,10 +93,6 @@ class MucosaLayers:
 
 @functools.lru_cache(maxsize=8)
 def _bake(layers: MucosaLayers):
-    import numpy as np
-
-    from materials.textures import bake_layer
-
     base = np.asarray(layers.base_albedo)
     palette = np.stack([np.asarray(layers.submucosa_colour), base, np.asarray(layers.connective_colour)])
     nominal = 0.3

@@ -1,6 +1,6 @@
 """Procedural organic textures (Qian §6.2.1–6.2.2): a seeded quadtree stamp generator with per-level
-randomness and blend modes, palette extraction from a reference image, and per-layer bakes (albedo,
-roughness, height, tangent-space normal, vessel mask).
+randomness and blend modes, palette gradients, and per-layer bakes (albedo, roughness, height,
+tangent-space normal, vessel mask).
 
 Quadtree generator: level L splits the unit square into 2^L × 2^L cells; every cell stamps one soft
 ellipse whose centre is the cell centre moved by a polar offset (radius up to ``offset`` cell sizes,
@@ -103,21 +103,6 @@ def quadtree(size: int, spec: Quadtree, seed: int) -> np.ndarray:
     return np.clip(canvas, 0.0, 1.0)
 
 
-def extract_palette(image: np.ndarray, k: int = 5, seed: int = 0) -> np.ndarray:
-    """``k`` representative colours (k, 3) of an RGB image in [0, 1], by seeded k-means (scipy),
-    sorted from dark to light (Rec. 709 luma)."""
-    from scipy.cluster.vq import kmeans2
-
-    pixels = np.asarray(image, dtype=np.float64).reshape(-1, 3)
-    if pixels.shape[0] < k:
-        raise ValueError(f"a palette of {k} colours needs at least {k} pixels, found {pixels.shape[0]}")
-    rng = np.random.default_rng(seed)
-    sample = pixels[rng.choice(pixels.shape[0], size=min(pixels.shape[0], 20000), replace=False)]
-    centres, _ = kmeans2(sample, k, minit="++", seed=seed)
-    luma = centres @ np.array([0.2126, 0.7152, 0.0722])
-    return centres[np.argsort(luma)]
-
-
 def apply_palette(values: np.ndarray, palette: np.ndarray) -> np.ndarray:
     """Map values in [0, 1] through the palette as a piecewise-linear gradient: (..., 3)."""
     stops = np.linspace(0.0, 1.0, palette.shape[0])
@@ -134,8 +119,6 @@ def normal_map(height: np.ndarray, strength: float) -> np.ndarray:
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
-FIBRES = Quadtree(levels=tuple(Level(opacity=0.6, aspect=12.0, size_jitter=0.5, rotation=0.35, value=(0.2, 1.0))
-                               for _ in range(5)), start_level=2, background=0.5, softness=0.8)
 VESSELS = Quadtree(levels=tuple(Level(opacity=0.9, aspect=25.0, size_jitter=0.6, rotation=np.pi, value=(0.7, 1.0),
                                       blend="max") for _ in range(4)), start_level=1, background=0.0, softness=0.6)
 MOTTLE = Quadtree(levels=tuple(Level(opacity=0.45, value=(0.3, 0.8), blend=b)

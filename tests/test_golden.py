@@ -1,7 +1,6 @@
 """Golden-image checks: the project's own goldens pass, and the checks catch real regressions."""
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import pytest

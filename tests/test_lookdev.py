@@ -2,18 +2,23 @@
 pixels, that the printed table reproduces the look, and that bad values are refused by name."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 from PIL import Image
+from trimesh.exchange.ply import export_ply
 
 from materials import get_preset
+from sim.mesh.io import read_surface
 from tissuerender import lookdev
 from tissuerender.cli import main
 from tissuerender.errors import SceneError
+from tissuerender.pipeline import render_image
 from tissuerender.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,8 +69,6 @@ def test_overriding_with_the_preset_values_changes_no_pixel():
 
 def test_the_printed_table_reproduces_the_look_in_a_scene(tmp_path):
     """lookdev --scene with a value == the scene with lookdev's [objects.optics] table, to the pixel."""
-    from tissuerender.pipeline import render_image
-
     scene_path = tmp_path / "kidney.toml"
     shutil.copy(ROOT / "scenes" / "kidney_static.toml", scene_path)
     cells, *_ = lookdev.make_cells(["kidney"], ["roughness=0.12"], ["ior=[1.33, 1.6]"])
@@ -88,8 +91,6 @@ def test_the_printed_table_reproduces_the_look_in_a_scene(tmp_path):
 
 
 def _with_samples(scene, samples):
-    import dataclasses
-
     return dataclasses.replace(scene, light=scene.light.model_copy(update={"samples": samples}))
 
 
@@ -170,11 +171,6 @@ def test_sheet_is_deterministic_and_written_atomically(tmp_path):
 
 def test_binary_ply_with_vertex_normals_keeps_them(tmp_path):
     """A binary PLY (as trimesh writes it) holds its vertex data as a structured array: its normals are read."""
-    import trimesh
-    from trimesh.exchange.ply import export_ply
-
-    from sim.mesh.io import read_surface
-
     sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.03)
     path = tmp_path / "sphere.ply"
     path.write_bytes(export_ply(sphere, encoding="binary", vertex_normal=True))

@@ -2,13 +2,15 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
 from PIL import Image
 
 import tissuerender
-from tissuerender import load_scene
+from tissuerender import load_scene, pipeline
+from tissuerender.bodies import build_body
 from tissuerender.cli import main
 
 
@@ -72,11 +74,9 @@ def test_simulated_frames_change_as_the_probe_presses(scene_dict, write_scene, t
 
 def test_interrupted_render_keeps_finished_frames_and_leaves_no_partial_file(scene_dict, write_scene, tmp_path,
                                                                              monkeypatch):
-    from tissuerender import pipeline
-
     scene_dict["output"]["frames"] = 3
     scene = load_scene(write_scene(scene_dict))
-    real = pipeline._write_png
+    real = pipeline.write_png
     calls = {"n": 0}
 
     def flaky(path, image):
@@ -85,14 +85,14 @@ def test_interrupted_render_keeps_finished_frames_and_leaves_no_partial_file(sce
             raise KeyboardInterrupt
         real(path, image)
 
-    monkeypatch.setattr(pipeline, "_write_png", flaky)
+    monkeypatch.setattr(pipeline, "write_png", flaky)
     out = tmp_path / "out"
     with pytest.raises(KeyboardInterrupt):
         tissuerender.render(scene, out, progress=False)
     assert sorted(p.name for p in out.iterdir()) == ["frame_0001.png", "manifest.json"]
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["complete"] is False and manifest["frames_done"] == 1
-    monkeypatch.setattr(pipeline, "_write_png", real)
+    monkeypatch.setattr(pipeline, "write_png", real)
     resumed = tissuerender.render(scene, out, resume=True, progress=False)
     assert [p.name for p in resumed.written] == ["frame_0002.png", "frame_0003.png"]
 
@@ -123,15 +123,11 @@ def test_integrator_choice_renders_or_exits_2_with_the_reason(scene_dict, write_
         manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
         assert "simulate" in json.dumps(manifest)
     else:
-        import re
-
         assert code == 2 and re.search(message, err) and "Traceback" not in err
         assert str(path) in err
 
 
 def test_paint_strokes_stiffen_the_model_and_bad_ones_exit_2(scene_dict, write_scene, tmp_path, capsys):
-    from tissuerender.bodies import build_body
-
     scene_dict["objects"][0]["paint"] = [{"centre": [0.0, 0.0, 0.0], "radius": 0.05, "amount": 3.0}]
     scene = load_scene(write_scene(scene_dict))
     body = build_body(scene.objects[0], 0, scene)

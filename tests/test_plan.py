@@ -3,13 +3,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 
+import sim.integrators
 import tissuerender
 from tissuerender import load_scene, make_plan
 from tissuerender.cli import main
-from tissuerender.stages import StageRecorder
 
 SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
 
@@ -82,8 +81,6 @@ def test_only_listed_post_effects_are_planned(scene_dict, write_scene):
 
 
 def test_static_render_never_builds_an_integrator_or_bvh(scene_dict, write_scene, monkeypatch, tmp_path):
-    import sim.integrators
-
     def refuse(*args, **kwargs):
         raise AssertionError("an unplanned stage ran")
 

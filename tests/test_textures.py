@@ -4,9 +4,27 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.cluster.vq import kmeans2
 
-from materials.textures import (FIBRES, MOTTLE, Level, Quadtree, apply_palette, bake_layer, blend,
-                                extract_palette, normal_map, quadtree)
+from materials.textures import MOTTLE, Level, Quadtree, apply_palette, bake_layer, blend, normal_map, quadtree
+
+# A fibre-like pattern (long thin stamps, little rotation) and palette extraction from a reference image:
+# used only here, to check the generator and the palette gradient.
+FIBRES = Quadtree(levels=tuple(Level(opacity=0.6, aspect=12.0, size_jitter=0.5, rotation=0.35, value=(0.2, 1.0))
+                               for _ in range(5)), start_level=2, background=0.5, softness=0.8)
+
+
+def extract_palette(image: np.ndarray, k: int = 5, seed: int = 0) -> np.ndarray:
+    """``k`` representative colours (k, 3) of an RGB image in [0, 1], by seeded k-means (scipy),
+    sorted from dark to light (Rec. 709 luma)."""
+    pixels = np.asarray(image, dtype=np.float64).reshape(-1, 3)
+    if pixels.shape[0] < k:
+        raise ValueError(f"a palette of {k} colours needs at least {k} pixels, found {pixels.shape[0]}")
+    rng = np.random.default_rng(seed)
+    sample = pixels[rng.choice(pixels.shape[0], size=min(pixels.shape[0], 20000), replace=False)]
+    centres, _ = kmeans2(sample, k, minit="++", seed=seed)
+    luma = centres @ np.array([0.2126, 0.7152, 0.0722])
+    return centres[np.argsort(luma)]
 
 
 def test_same_seed_same_texture_other_seed_other_texture():

@@ -13,52 +13,22 @@ from pathlib import Path
 
 import numpy as np
 
+import materials
 from sim.errors import MeshError
+from sim.mesh import io, procedural, select
+from sim.mesh.embed import deform, embed_points
+from sim.mesh.surface import boundary_surface, subdivide, taubin_smooth
 from sim.mesh.types import Embedding, SurfaceMesh, TetMesh
 from sim.model import Model, PrescribedDisplacement
+from sim.painting import Stroke, apply_painting
 from tissuerender.errors import SceneError
 from tissuerender.scene import Scene
 from tissuerender.scene.schema import ObjectSpec, Region
-
-# Bounding-box size [m] of each procedural shape when the scene gives none.
-DEFAULT_SIZE = {
-    "box": (1.0, 1.0, 1.0),
-    "beam": (2.0, 0.2, 0.2),
-    "cube": (2.0, 2.0, 2.0),
-    "cylinder": (1.0, 1.0, 2.0),  # diameter, diameter, length (axis z)
-    "slab": (0.2, 0.2, 0.03),
-}
-DEFAULT_SCALE = {"liver": 0.15, "kidney": 0.11}
-ORGAN_EXTENT = 2.2
-SMOOTHED_SHAPES = ("liver", "kidney")  # organ SDFs fit inside a box of about ORGAN_EXTENT * scale per side
-
-
-def procedural_extent(obj: ObjectSpec) -> tuple[tuple[float, float, float], float]:
-    """Bounding-box extent [m] and cell size [m] of a procedural body."""
-    if obj.shape in DEFAULT_SCALE:
-        if obj.size is not None:
-            raise ValueError(f"shape {obj.shape!r} takes 'scale', not 'size'")
-        scale = obj.scale if obj.scale is not None else DEFAULT_SCALE[obj.shape]
-        extent = (ORGAN_EXTENT * scale,) * 3
-        h = obj.cell_size if obj.cell_size is not None else scale / 6.0
-        return extent, h
-    if obj.scale is not None:
-        raise ValueError(f"shape {obj.shape!r} takes 'size', not 'scale'")
-    extent = tuple(obj.size) if obj.size is not None else DEFAULT_SIZE[obj.shape]
-    if any(e <= 0.0 for e in extent):
-        raise ValueError(f"size must be positive, found {list(extent)}")
-    if obj.shape == "cube" and not (extent[0] == extent[1] == extent[2]):
-        raise ValueError(f"a cube needs equal sides, found size {list(extent)}")
-    if obj.shape == "cylinder" and extent[0] != extent[1]:
-        raise ValueError(f"a cylinder's size is [diameter, diameter, length], found {list(extent)}")
-    h = obj.cell_size if obj.cell_size is not None else min(extent) / 4.0
-    return extent, h
+from tissuerender.scene.shapes import DEFAULT_SCALE, ORGAN_SHAPES, procedural_extent
 
 
 def build_tet_mesh(obj: ObjectSpec, scene: Scene) -> TetMesh:
     """The body's rest tet mesh, translated to ``obj.position``."""
-    from sim.mesh import io, procedural
-
     if obj.mesh is not None and Path(obj.mesh).suffix.lower() in io.SURFACE_SUFFIXES:
         # A closed surface: voxelised into tets (trimesh) with the boundary snapped back onto it.
         surface = io.read_surface(scene.resolve(obj.mesh))
@@ -86,8 +56,6 @@ def build_tet_mesh(obj: ObjectSpec, scene: Scene) -> TetMesh:
 
 def region_nodes(points: np.ndarray, region: Region) -> np.ndarray:
     """Indices of the nodes in a region: a bounding-box side (``x_min`` ...) or an explicit box."""
-    from sim.mesh import select
-
     if region.side is not None:
         axis = "xyz".index(region.side[0])
         return select.nodes_on_side(points, axis, region.side[2:])
@@ -111,8 +79,6 @@ def _traction_forces(mesh: TetMesh, surface: SurfaceMesh, nodes: np.ndarray, tra
 
 def build_model(obj: ObjectSpec, index: int, mesh: TetMesh, scene: Scene, boundary: SurfaceMesh) -> Model:
     """A :class:`Model` from the body's material preset (with overrides) and boundary conditions."""
-    import materials
-
     mech = materials.get_preset(obj.material).mechanics
     over = obj.override
     E = over.E if over and over.E is not None else mech.E
@@ -127,8 +93,6 @@ def build_model(obj: ObjectSpec, index: int, mesh: TetMesh, scene: Scene, bounda
     )
     key = f"objects[{index}]"
     if obj.paint:
-        from sim.painting import Stroke, apply_painting
-
         try:
             apply_painting(model, [Stroke(tuple(p.centre), p.radius, p.amount) for p in obj.paint])
         except ValueError as e:
@@ -166,8 +130,6 @@ class Body:
     embedding: Embedding
 
     def surface_points(self, x: np.ndarray) -> np.ndarray:
-        from sim.mesh.embed import deform
-
         return deform(self.embedding, self.mesh.tets, x)
 
 
@@ -178,9 +140,6 @@ class StaticSurface:
 
 
 def build_body(obj: ObjectSpec, index: int, scene: Scene) -> Body:
-    from sim.mesh.embed import embed_points
-    from sim.mesh.surface import boundary_surface, subdivide, taubin_smooth
-
     try:
         mesh = build_tet_mesh(obj, scene)
     except MeshError as e:
@@ -188,23 +147,21 @@ def build_body(obj: ObjectSpec, index: int, scene: Scene) -> Body:
     boundary = boundary_surface(mesh)
     model = build_model(obj, index, mesh, scene, boundary)
     surface = boundary
-    if obj.shape in SMOOTHED_SHAPES:
+    if obj.shape in ORGAN_SHAPES:
         # Organ shapes come from a voxel grid: smooth the staircase away at the tet-mesh scale first,
         # then again lightly after subdivision; the result is embedded in the tets.
         surface = taubin_smooth(surface, iterations=20)
     if obj.render_subdivision:
         surface = subdivide(surface, obj.render_subdivision)
-        if obj.shape in SMOOTHED_SHAPES:
+        if obj.shape in ORGAN_SHAPES:
             surface = taubin_smooth(surface, iterations=4)
     embedding = embed_points(mesh, surface.points)
     return Body(obj, mesh, model, surface, embedding)
 
 
 def build_static_surface(obj: ObjectSpec, index: int, scene: Scene) -> StaticSurface:
-    from sim.mesh.io import read_surface
-
     try:
-        surface = read_surface(scene.resolve(obj.mesh))
+        surface = io.read_surface(scene.resolve(obj.mesh))
     except MeshError as e:
         raise SceneError(scene.path, f"objects[{index}].mesh", str(e)) from None
     scale = obj.scale if obj.scale is not None else 1.0

@@ -9,12 +9,11 @@ import argparse
 import sys
 
 from sim.errors import MeshError
+from tissuerender import golden, load_scene, lookdev, make_plan, render
 from tissuerender.errors import UserError
 
 
 def _cmd_render(args) -> int:
-    from tissuerender import load_scene, render
-
     scene = load_scene(args.scene)
     result = render(scene, args.out, resume=args.resume, progress=not args.quiet, frames=args.frames)
     if not args.quiet:
@@ -25,8 +24,6 @@ def _cmd_render(args) -> int:
 
 
 def _cmd_plan(args) -> int:
-    from tissuerender import load_scene, make_plan
-
     scene = load_scene(args.scene)
     print(f"scene {scene.name!r} ({scene.path})")
     print(make_plan(scene).describe())
@@ -34,8 +31,6 @@ def _cmd_plan(args) -> int:
 
 
 def _cmd_validate(args) -> int:
-    from tissuerender import load_scene
-
     for path in args.scenes:
         scene = load_scene(path)
         print(f"{path}: ok ({scene.name!r}, {len(scene.objects)} object(s), {scene.output.frames} frame(s))")
@@ -58,8 +53,6 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("validate", help="check scene files without rendering")
     p.add_argument("scenes", nargs="+")
     p.set_defaults(func=_cmd_validate)
-    from tissuerender import golden, lookdev
-
     golden.add_cli(sub)
     lookdev.add_cli(sub)
     return parser

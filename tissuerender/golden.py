@@ -28,10 +28,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
 
+import flip_evaluator
 import numpy as np
+from PIL import Image
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+import postfx
 from tissuerender.errors import SceneError, UserError
+from tissuerender.files import write_png
+from tissuerender.pipeline import render_image
+from tissuerender.scene import load_scene
+from tissuerender.scene.load import read_toml, validation_error
 
 
 class GoldenImage(BaseModel):
@@ -63,8 +70,6 @@ class Result:
 
 
 def load_manifest(directory) -> tuple[Path, GoldenManifest]:
-    from tissuerender.scene.load import _validation_error, read_toml
-
     directory = Path(directory)
     path = directory / "manifest.toml"
     if not directory.is_dir():
@@ -73,7 +78,7 @@ def load_manifest(directory) -> tuple[Path, GoldenManifest]:
     try:
         manifest = GoldenManifest.model_validate(data)
     except ValidationError as e:
-        raise _validation_error(path, e) from None
+        raise validation_error(path, e) from None
     names = [img.name for img in manifest.image]
     if len(set(names)) != len(names):
         raise SceneError(path, "image", f"expected unique names, found {names}")
@@ -81,8 +86,6 @@ def load_manifest(directory) -> tuple[Path, GoldenManifest]:
 
 
 def _render(entry: GoldenImage, directory: Path, seed: int | None = None) -> np.ndarray:
-    from tissuerender import load_scene, render_image
-
     scene = load_scene((directory / entry.scene).resolve())
     return render_image(scene, seed=seed, resolution=tuple(entry.resolution))
 
@@ -98,8 +101,6 @@ def psnr(reference: np.ndarray, test: np.ndarray) -> float:
 
 def flip(reference: np.ndarray, test: np.ndarray) -> tuple[float, np.ndarray]:
     """Mean FLIP error and the (H, W, 3) magma error map of two LDR sRGB images in [0, 1]."""
-    import flip_evaluator
-
     error_map, mean, _ = flip_evaluator.evaluate(np.ascontiguousarray(reference), np.ascontiguousarray(test),
                                                  "LDR", applyMagma=True)
     return float(mean), np.asarray(error_map)
@@ -119,7 +120,7 @@ def welch_t_test(mean_ref, var_ref, n_ref, mean_new, var_new, n_new, var_floor=1
     freedom). With a handful of seeds per side the variances are themselves noisy; a normal z-test would
     understate the tails (P(|z| > 5) = 6e-7, but P(|t| > 5) = 5e-4 at 10 degrees of freedom) and fail
     unbiased images once thousands of pixels are tested."""
-    from scipy.stats import t as student_t
+    from scipy.stats import t as student_t  # heavy and needed only by statistical checks: kept lazy
 
     a = np.maximum(var_ref, var_floor) / n_ref
     b = np.maximum(var_new, var_floor) / n_new
@@ -129,19 +130,7 @@ def welch_t_test(mean_ref, var_ref, n_ref, mean_new, var_new, n_new, var_floor=1
     return t, p
 
 
-def _write_png(path: Path, image01: np.ndarray) -> None:
-    from PIL import Image
-
-    import postfx
-    from tissuerender.pipeline import write_atomic
-
-    rgb = postfx.to_uint8(image01)
-    write_atomic(path, lambda tmp: Image.fromarray(rgb).save(tmp, format="PNG"))
-
-
 def _read_png(path: Path) -> np.ndarray:
-    from PIL import Image
-
     if not path.is_file():
         raise UserError(f"{path}: stored golden image missing; run `tissuerender golden update {path.parent}`")
     return np.asarray(Image.open(path).convert("RGB"))
@@ -156,10 +145,10 @@ def update(directory, only: str | None = None) -> list[Path]:
         if only and entry.name != only:
             continue
         if entry.mode == "exact":
-            _write_png(directory / f"{entry.name}.png", _to_float(_render(entry, directory)))
+            write_png(directory / f"{entry.name}.png", _render(entry, directory))
         else:
             mean, var = _stats(entry, directory, offset=0)
-            _write_png(directory / f"{entry.name}.png", mean)
+            write_png(directory / f"{entry.name}.png", postfx.to_uint8(mean))
             np.savez_compressed(directory / f"{entry.name}.stats.npz", mean=mean.astype(np.float32),
                                 var=var.astype(np.float32), n=np.int64(entry.n_seeds))
         written.append(directory / f"{entry.name}.png")
@@ -201,8 +190,8 @@ def check(directory, only: str | None = None, write_failures: bool = True) -> li
             diff = np.clip(np.abs(z) / 10.0, 0.0, 1.0)
         if not ok and write_failures:
             failures = directory / "failures"
-            _write_png(failures / f"{entry.name}.new.png", new)
-            _write_png(failures / f"{entry.name}.diff.png", diff)
+            write_png(failures / f"{entry.name}.new.png", postfx.to_uint8(new))
+            write_png(failures / f"{entry.name}.diff.png", postfx.to_uint8(diff))
         results.append(Result(entry.name, entry.mode, bool(ok), metrics, message))
     return results
 

@@ -11,7 +11,7 @@ lookdev shows is what a scene with the printed table renders. Same arguments, sa
 """
 from __future__ import annotations
 
-import argparse
+import copy
 import hashlib
 import itertools
 import json
@@ -22,11 +22,20 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
 from pydantic import ValidationError
 
+import materials
+from materials.optics import OVERRIDABLE, with_overrides
 from tissuerender.errors import UserError
+from tissuerender.files import write_json, write_png
+from tissuerender.pipeline import render_frame_arrays
+from tissuerender.scene import load_scene
+from tissuerender.scene.load import read_toml, scene_from_data, short_repr, tomllib
+from tissuerender.scene.schema import OpticsOverride
+from tissuerender.scene.shapes import ORGAN_SHAPES
 
-SHAPES = ("sphere", "liver", "kidney")
+SHAPES = ("sphere",) + ORGAN_SHAPES
 MAX_CELLS = 64
 LABEL_PX = 14  # height of the label strip under each cell
 LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 luminance of linear RGB
@@ -74,7 +83,7 @@ def _stage(shape: str, mesh_path: Path | None) -> dict:
 
 def _sphere_mesh(directory: Path) -> Path:
     """A smooth unit-sampled sphere of radius 3 cm (icosphere, 5,120 faces) as a PLY file in ``directory``."""
-    import trimesh
+    import trimesh  # heavy (pulls in scipy.spatial) and needed only by the sphere stage: kept lazy
 
     path = directory / "lookdev_sphere.ply"
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.03)
@@ -84,8 +93,6 @@ def _sphere_mesh(directory: Path) -> Path:
 
 def parse_value(option: str, key: str, text: str):
     """A ``--set``/``--sweep`` value written as TOML (``0.3``, ``[0.5, 0.1, 0.1]``)."""
-    from tissuerender.scene.load import tomllib
-
     try:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
@@ -102,21 +109,15 @@ def _split(option: str, item: str) -> tuple[str, str]:
 
 def check_overrides(option: str, values: dict, optics) -> None:
     """Validate optical values as a scene's ``[objects.optics]`` table would be, naming the option and key."""
-    from materials.optics import with_overrides
-    from tissuerender.scene.load import _short
-    from tissuerender.scene.schema import OpticsOverride
-
     try:
         OpticsOverride.model_validate(values)
     except ValidationError as e:
         first = e.errors(include_url=False)[0]
         key = str(first["loc"][0]) if first["loc"] else "?"
         if first["type"] == "extra_forbidden":
-            from materials.optics import OVERRIDABLE
-
             raise UserError(f"{option} {key}: not an optical key; expected one of {', '.join(OVERRIDABLE)}") from None
         msg = first["msg"][0].lower() + first["msg"][1:]
-        raise UserError(f"{option} {key}: expected {msg}, found {_short(values.get(key))}") from None
+        raise UserError(f"{option} {key}: expected {msg}, found {short_repr(values.get(key))}") from None
     try:
         with_overrides(optics, values)
     except ValueError as e:
@@ -132,8 +133,6 @@ def _label(key: str, value) -> str:
 def make_cells(names: list[str], sets: list[str], sweeps: list[str]) -> tuple[list[Cell], int, int, dict]:
     """The cells (row-major), the grid's rows and columns, and the fixed ``--set`` values. Several materials:
     one row each (and at most one ``--sweep``, the columns); one material: up to two sweeps (columns, rows)."""
-    import materials
-
     for name in names:
         if name not in materials.PRESET_NAMES:
             raise UserError(f"material: expected one of {', '.join(materials.PRESET_NAMES)}, found {name!r}")
@@ -187,8 +186,6 @@ def _stage_data(shape: str, scene_path: str | None, workdir: Path) -> tuple[dict
     """The stage's scene tables (the built-in stage's object without its material) and the path naming it."""
     if scene_path is None:
         return _stage(shape, _sphere_mesh(workdir) if shape == "sphere" else None), workdir / f"lookdev_{shape}.toml"
-    from tissuerender.scene.load import read_toml
-
     path = Path(scene_path)
     return read_toml(path), path
 
@@ -216,16 +213,9 @@ def render_cells(cells: list[Cell], shape: str = "sphere", scene_path: str | Non
     """Render every cell; returns ``(images, stats)``: uint8 (H, W, 3) per cell and one dict per cell.
     On the built-in stage the object is made of the cell's material; on a scene (``scene_path``), every
     object made of it gets the cell's values."""
-    import copy
-
-    from tissuerender.pipeline import render_frame_arrays
-    from tissuerender.scene.load import scene_from_data
-
     with tempfile.TemporaryDirectory(prefix="tissuerender_lookdev_") as tmp:
         base, path = _stage_data(shape, scene_path, Path(tmp))
         if scene_path is not None:  # the scene as it is must be valid, and hold every material, before anything renders
-            from tissuerender.scene import load_scene
-
             load_scene(path)
             for cell in cells:
                 _objects_of(base, path, cell.material)
@@ -260,7 +250,7 @@ def _object_mask(result, scene, idx: list[int]) -> np.ndarray:
     depth, material = result.gbuffer["depth"], result.gbuffer["material_id"]
     index = np.full(depth.shape, -1, np.int64)
     index[np.isfinite(depth)] = material
-    # render objects: bodies first, then static surfaces, then tools (tissuerender.pipeline.render_objects)
+    # render objects: bodies first, then static surfaces, then tools (tissuerender.render_inputs.render_objects)
     order = [i for i, o in enumerate(scene.objects) if o.kind == "body"]
     order += [i for i, o in enumerate(scene.objects) if o.kind == "surface"]
     wanted = np.isin(index, [k for k, i in enumerate(order) if i in idx])
@@ -298,8 +288,6 @@ def contact_sheet(images: list[np.ndarray], labels: list[str], rows: int, cols: 
     """The cells in a rows x cols grid, each with its label in a strip underneath (uint8 RGB), and the strip's
     height: one line per label, or one line per part of the label (parts are separated by two spaces) when
     a label is wider than a cell."""
-    from PIL import Image, ImageDraw, ImageFont
-
     h, w = images[0].shape[:2]
     font = ImageFont.load_default()
     probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
@@ -318,15 +306,11 @@ def contact_sheet(images: list[np.ndarray], labels: list[str], rows: int, cols: 
 
 
 def _write_outputs(out: Path, sheet: np.ndarray, report: dict) -> Path:
-    from PIL import Image
-
-    from tissuerender.pipeline import write_atomic
-
     if out.suffix.lower() != ".png":
         raise UserError(f"-o {out}: expected a .png file name for the contact sheet")
-    write_atomic(out, lambda tmp: Image.fromarray(sheet).save(tmp, format="PNG"))
+    write_png(out, sheet)
     side = out.with_suffix(".json")
-    write_atomic(side, lambda tmp: Path(tmp).write_text(json.dumps(report, indent=2) + "\n"))
+    write_json(side, report)
     return side
 
 
@@ -340,8 +324,6 @@ def _resolution(text: str | None) -> tuple[int, int] | None:
 
 
 def _cmd_lookdev(args) -> int:
-    import materials
-
     if args.scene is not None and args.shape != "sphere":
         raise UserError("--shape: the stage is the scene given with --scene; leave --shape out")
     if args.frame < 1:
@@ -354,10 +336,9 @@ def _cmd_lookdev(args) -> int:
     images, stats = render_cells(cells, args.shape, args.scene, _resolution(args.resolution), args.samples,
                                  args.exposure, args.frame)
     sheet, strip = contact_sheet(images, [c.label for c in cells], rows, cols)
-    keys = ("albedo", "roughness", "ior", "k_sss", "sigma", "sss_colour")
     report = {"materials": args.material, "stage": args.scene or args.shape, "rows": rows, "columns": cols,
               "cell_size": [int(images[0].shape[1]), int(images[0].shape[0])], "label_px": strip,
-              "preset_optics": {m: {k: getattr(materials.get_preset(m).optics, k) for k in keys} for m in args.material},
+              "preset_optics": {m: {k: getattr(materials.get_preset(m).optics, k) for k in OVERRIDABLE} for m in args.material},
               "set": fixed, "cells": stats}
     side = _write_outputs(Path(args.out), sheet, report)
     if not args.quiet:
@@ -378,7 +359,7 @@ def add_cli(subparsers) -> None:
         description="Render MATERIAL(s) under the laparoscope light; --set replaces optical values, --sweep varies "
                     "one (columns) or two (columns, rows); several materials are rows; writes a labelled contact sheet and a JSON report.")
     p.add_argument("material", nargs="+",
-                   help="material preset(s): liver, kidney, colon_mucosa, fat, fascia, peritoneum, plastic (several: a row each)")
+                   help=f"material preset(s): {', '.join(materials.PRESET_NAMES)} (several: a row each)")
     p.add_argument("-o", "--out", default="lookdev.png", help="contact sheet (.png); the report goes next to it (.json)")
     p.add_argument("--shape", choices=SHAPES, default="sphere", help="the built-in stage's object (default: sphere)")
     p.add_argument("--scene", help="use this scene as the stage: every object made of MATERIAL gets the values")

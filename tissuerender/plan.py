@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import materials
+import postfx
 from sim.integrators import supported_by, supports
 from tissuerender.scene import Scene
 
@@ -68,8 +70,6 @@ def motion_sources(scene: Scene) -> list[str]:
 
 
 def make_plan(scene: Scene) -> Plan:
-    import materials
-
     run: list[Stage] = []
     skip: list[Stage] = []
 
@@ -126,8 +126,6 @@ def make_plan(scene: Scene) -> Plan:
            "effects.mucus_reflection = false")
     decide("shade", True, f"area light, {scene.light.samples} samples ({scene.light.sampling})", "")
     chain = scene.effect_chain()
-    import postfx
-
     for name in postfx.EFFECTS:
         listed = any(n == name for n, _ in chain)
         decide(f"postfx.{name}", listed, f"effects.{name} ({eff.backend} backend)", "not listed in effects")

@@ -35,8 +35,6 @@ class StageRecorder:
         return {k: {"calls": self.calls[k], "seconds": round(self.seconds[k], 6)} for k in self.calls}
 
 
-
-
 def recorder_or_new(recorder: StageRecorder | None) -> StageRecorder:
     """The given recorder, or a fresh one for callers that do not track stages."""
     return recorder if recorder is not None else StageRecorder()

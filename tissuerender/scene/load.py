@@ -8,16 +8,19 @@ a render hang (tet counts, step counts).
 from __future__ import annotations
 
 import hashlib
-import math
 from dataclasses import dataclass
 from pathlib import Path
-
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from typing import Annotated
 
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+import materials
+import postfx
+from materials.optics import with_overrides
 from sim.mesh.io import SURFACE_SUFFIXES, TET_SUFFIXES
 from tissuerender.errors import SceneError
 from tissuerender.scene import schema
+from tissuerender.scene.shapes import estimated_tets
 
 try:  # Python 3.11+
     import tomllib
@@ -26,7 +29,6 @@ except ModuleNotFoundError:  # pragma: no cover - Python 3.10
 
 MAX_TETS = 400_000
 MAX_SIM_STEPS = 2_000_000
-SECTIONS = ("scene", "objects", "simulation", "tools", "camera", "light", "effects", "output")
 
 
 class SceneFile(BaseModel):
@@ -83,8 +85,6 @@ class Scene:
 
     def effect_chain(self) -> list[tuple[str, BaseModel]]:
         """The post-effects to run, in order: explicit ``order``, else the preset's, else the default."""
-        import postfx
-
         listed = {name: getattr(self.effects, name) for name in postfx.EFFECTS if getattr(self.effects, name) is not None}
         preset = list(postfx.CAMERA_PRESETS[self.effects.preset]) if self.effects.preset else []
         chain: dict[str, BaseModel] = {}
@@ -105,22 +105,22 @@ def _key_path(loc) -> str:
     return out
 
 
-def _short(value, limit: int = 60) -> str:
+def short_repr(value, limit: int = 60) -> str:
     text = repr(value)
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def _validation_error(path: Path, err: ValidationError, prefix: str = "") -> SceneError:
+def validation_error(path: Path, err: ValidationError, prefix: str = "") -> SceneError:
     errors = err.errors(include_url=False)
     first = errors[0]
     key = _key_path(((prefix,) if prefix else ()) + tuple(first["loc"]))
     kind = first["type"]
     if kind == "extra_forbidden":
-        msg = f"unknown key (found {_short(first['input'])}); check its spelling against docs/scene-format.md"
+        msg = f"unknown key (found {short_repr(first['input'])}); check its spelling against docs/scene-format.md"
     elif kind == "missing":
         msg = "missing required key"
     else:
-        msg = f"expected {first['msg'][0].lower() + first['msg'][1:]}, found {_short(first.get('input'))}"
+        msg = f"expected {first['msg'][0].lower() + first['msg'][1:]}, found {short_repr(first.get('input'))}"
     if len(errors) > 1:
         msg += f" (and {len(errors) - 1} more problem{'s' if len(errors) > 2 else ''})"
     return SceneError(path, key or None, msg)
@@ -162,11 +162,11 @@ def scene_from_data(data: dict, path, sha256: str) -> Scene:
     try:
         parsed = SceneFile.model_validate(data)
     except ValidationError as e:
-        raise _validation_error(path, e) from None
+        raise validation_error(path, e) from None
     try:
         effects = schema.Effects.model_validate(parsed.effects)
     except ValidationError as e:
-        raise _validation_error(path, e, "effects") from None
+        raise validation_error(path, e, "effects") from None
     scene = Scene(
         path=path,
         sha256=sha256,
@@ -183,21 +183,7 @@ def scene_from_data(data: dict, path, sha256: str) -> Scene:
     return scene
 
 
-def estimated_tets(obj: schema.ObjectSpec) -> int:
-    """Upper estimate of a procedural body's tet count (6 tets per grid cell of its bounding box)."""
-    from tissuerender.bodies import procedural_extent
-
-    extent, h = procedural_extent(obj)
-    cells = 1.0
-    for e in extent:
-        cells *= max(1.0, math.ceil(e / h))
-    return int(min(6.0 * cells, 1e18))
-
-
 def _check_references(scene: Scene) -> None:
-    import materials
-    import postfx
-
     p = scene.path
     names = set()
     for i, obj in enumerate(scene.objects):
@@ -209,8 +195,6 @@ def _check_references(scene: Scene) -> None:
             raise SceneError(p, f"{key}.material",
                              f"expected one of {', '.join(materials.PRESET_NAMES)}, found {obj.material!r}")
         if obj.optics is not None:
-            from materials.optics import with_overrides
-
             try:
                 with_overrides(materials.get_preset(obj.material).optics, obj.optics.values())
             except ValueError as e:

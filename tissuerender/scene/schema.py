@@ -20,12 +20,12 @@ from sim.integrators.explicit import ExplicitSceneSettings
 from sim.integrators.reference import ReferenceSceneSettings
 from sim.integrators.xpbd.settings import XPBDSceneSettings
 
+from tissuerender.scene.shapes import SHAPES
+
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Vec2Pos = Annotated[list[Annotated[float, Field(gt=0.0)]], Field(min_length=2, max_length=2)]
 RGB = Annotated[list[Annotated[float, Field(ge=0.0, le=1e6)]], Field(min_length=3, max_length=3)]
-Length = Annotated[float, Field(gt=0.0, le=1e3)]
 
-SHAPES = ("box", "beam", "cube", "cylinder", "slab", "liver", "kidney")
 INTEGRATORS = (*REGISTRY, "none")
 FORMATS = ("png", "hdr_npy", "vtu")
 AXES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
@@ -278,27 +278,30 @@ class Output(Strict):
     jitter: bool = True
 
 
-RENDER_FLAGS = ("shadows", "sss", "ao", "mucus_reflection", "motion")
-
-
 class EffectsBase(Strict):
-    """Renderer switches; ``Effects`` adds the post-effect tables from ``postfx.registry``."""
+    """Renderer switches (each adds stages only when on; docs/scene-format.md, ``[effects]``); the post-effect
+    tables are added from ``postfx.EFFECTS`` (see ``effects_model``)."""
 
-    shadows: bool = False
-    sss: bool = False
-    sss_thickness: Literal["vertex", "pixel"] = "vertex"
-    ao: bool = False
-    ambient: RGB = [0.0, 0.0, 0.0]
-    ao_distance: Annotated[float, Field(gt=0.0, le=100.0)] = 0.02
-    ao_samples: Annotated[int, Field(ge=1, le=256)] = 8
-    mucus_reflection: bool = False
-    environment_up: RGB = [0.0, 0.0, 0.0]
-    environment_down: RGB = [0.0, 0.0, 0.0]
-    environment_axis: Vec3 = [0.0, 0.0, 1.0]
-    motion: bool = False
-    backend: Literal["auto", "numpy", "osmesa"] = "auto"
-    preset: str | None = None
-    order: list[str] | None = None
+    shadows: Annotated[bool, Field(description="shadow rays against a BVH")] = False
+    sss: Annotated[bool, Field(description="thickness-based subsurface term C exp(-sigma T) (Qian eq. 6.8)")] = False
+    sss_thickness: Annotated[Literal["vertex", "pixel"], Field(
+        description="thickness rays from the render surface's vertices, or from every shading point")] = "vertex"
+    ao: Annotated[bool, Field(description="ambient occlusion of the ambient light; needs a non-zero ambient")] = False
+    ambient: Annotated[RGB, Field(description="uniform environment radiance [W m^-2 sr^-1]")] = [0.0, 0.0, 0.0]
+    ao_distance: Annotated[float, Field(gt=0.0, le=100.0, description="occlusion ray length [m]")] = 0.02
+    ao_samples: Annotated[int, Field(ge=1, le=256, description="occlusion rays per shading point")] = 8
+    mucus_reflection: Annotated[bool, Field(
+        description="the mucus coat reflects the gradient environment (Qian §7.2.2)")] = False
+    environment_up: Annotated[RGB, Field(
+        description="environment radiance towards environment_axis [W m^-2 sr^-1]")] = [0.0, 0.0, 0.0]
+    environment_down: Annotated[RGB, Field(
+        description="environment radiance away from environment_axis [W m^-2 sr^-1]")] = [0.0, 0.0, 0.0]
+    environment_axis: Annotated[Vec3, Field(description="the environment gradient's axis (non-zero)")] = [0.0, 0.0, 1.0]
+    motion: Annotated[bool, Field(description="per-pixel velocity channel")] = False
+    backend: Annotated[Literal["auto", "numpy", "osmesa"], Field(
+        description="post-effects backend: NumPy reference, off-screen OpenGL, or OpenGL when available")] = "auto"
+    preset: Annotated[str | None, Field(description="a camera preset of postfx.CAMERA_PRESETS")] = None
+    order: Annotated[list[str] | None, Field(description="explicit order of the post-effects")] = None
 
     @model_validator(mode="after")
     def _reflection_needs_an_environment(self):
