@@ -45,7 +45,7 @@ class MucosaLayers:
        ``connective_thickness`` [m] and absorption ``connective_absorption`` [1/m];
     4. submucosa (vessels): diffuse ``submucosa_colour`` under it.
 
-    Layers combine through transmittance (``tissuerender.render.brdf.layered_reflectance_cos``), so
+    Layers combine through transmittance (``tissuerender.renderer.bsdf.mucosa``), so
     the stack never reflects more than arrives (white-furnace test).
     """
 
@@ -163,7 +163,7 @@ OPTICS: dict[str, OpticalMaterial] = {
     "peritoneum": OpticalMaterial(albedo=(0.62, 0.40, 0.36), roughness=0.28, ior=1.38, k_sss=0.4,
                                   sigma=(400.0, 1200.0, 1800.0), sss_colour=(0.8, 0.4, 0.35)),
     # The plain reference: Mitsuba 3's roughplastic (GGX coat, polypropylene n = 1.49) over a grey
-    # Lambertian base, no subsurface term (tissuerender.render.plastic).
+    # Lambertian base, no subsurface term (tissuerender.renderer.bsdf.plastic).
     "plastic": OpticalMaterial(albedo=(0.55, 0.55, 0.58), roughness=0.25, ior=1.49, k_sss=0.0,
                                sigma=(1.0, 1.0, 1.0), sss_colour=(0.0, 0.0, 0.0), bsdf="roughplastic"),
 }

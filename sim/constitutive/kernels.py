@@ -104,7 +104,7 @@ def inverse_cube_root(J):
     lanes vectorises: a seed from the exponent bits (relative error <= 3.4 %), then two steps of
     ``y <- y (1 + r/3 + 2 r^2/9 + 14 r^3/81)`` with ``r = 1 - J y^3`` (the series of ``(1 - r)^(-1/3)``, error
     ~ 35/243 r^4 per step): 3.4e-2 -> 2e-5 -> rounding. Measured against 1 / cbrt(J) over J in
-    [1e-260, 1e260]: largest relative difference 2.2e-16, mean 5.3e-17."""
+    [1e-260, 1e260]: within 2 u of the exact value (the derivation is in the test)."""
     y = np.int64(_INV_CBRT_MAGIC - np.float64(np.float64(J).view(np.int64)) * (1.0 / 3.0)).view(np.float64)
     for _ in range(2):
         r = 1.0 - J * (y * y * y)
