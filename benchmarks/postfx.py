@@ -25,9 +25,7 @@ the read-back), each draw waited for before and after, medians over the runs aft
 Each figure is the median of several runs after one warm-up (compilation, context creation); every
 timed chain starts after a 50 ms pause (PAUSE_S: numba's OpenMP workers stop spinning); the effects
 alone run back to back, each backend's runs together. ``--backends osmesa`` (or ``numpy``) times one
-backend in the process (no ratio keys). The osmesa chain runs with its keep-awake threads unless
-TISSUERENDER_GL_KEEP_AWAKE=0 (postfx/gl/keep_awake.py; the "machine" string says which); their CPU time is
-in osmesa_cpu_ms_total.
+backend in the process (no ratio keys).
 """
 from __future__ import annotations
 
@@ -54,7 +52,6 @@ from postfx.blur import Blur  # noqa: E402
 from postfx.chromatic_aberration import ChromaticAberration  # noqa: E402
 from postfx.color_grade import ColorGrade  # noqa: E402
 from postfx.depth_of_field import DepthOfField  # noqa: E402
-from postfx.gl import keep_awake  # noqa: E402
 from postfx.gl.context import Context  # noqa: E402
 from postfx.gl.library import library_available  # noqa: E402
 from postfx.laparoscope_mask import LaparoscopeMask  # noqa: E402
@@ -228,7 +225,6 @@ def main() -> None:
         result["osmesa_skipped"] = "libOSMesa missing (Debian package libosmesa6)"
     result["machine"] = (f"{platform.machine()} {os.cpu_count()} cpus, numba threads {numba.get_num_threads()}, "
                          f"LP_NUM_THREADS {os.environ.get('LP_NUM_THREADS', 'default')}, "
-                         f"GL keep-awake threads {'on' if keep_awake.enabled() else 'off'}, "
                          f"numba threading layer {numba.threading_layer()}, pause {PAUSE_S * 1e3:.0f} ms before each run, "
                          f"load average {os.getloadavg()[0]:.2f}")
     print(json.dumps(result))

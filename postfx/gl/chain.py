@@ -12,13 +12,11 @@ applied in the last pass of the effect before it.
 """
 from __future__ import annotations
 
-import contextlib
 import time
 
 import numpy as np
 
 from postfx.effect import GLFrame
-from postfx.gl import keep_awake
 from postfx.gl.context import Context
 from postfx.gl.shaders import Epilogue
 from postfx.registry import POINTWISE, effect
@@ -77,8 +75,7 @@ def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fu
     """The whole chain on the GL side: one upload, one read-back. Returns the image (clipped to [0, 1]
     with ``clip``, as ``postfx.apply_chain`` returns it), the seconds of each group of fused effects
     (keyed by the effect's name, or by the names joined with "+" when pointwise effects were drawn in
-    its last pass) and the total seconds including the transfers. ``keep_awake`` threads spin while it
-    runs unless TISSUERENDER_GL_KEEP_AWAKE=0.
+    its last pass) and the total seconds including the transfers.
 
     The passes are queued without waiting for each other: llvmpipe's threads go from one pass to the
     next while this thread prepares the ones after, instead of sleeping after every effect. An
@@ -87,30 +84,28 @@ def run_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens, seed: int = 0, fu
     a DoF that comes first builds and uploads its own source, which counts) to the end of its own last
     pass."""
     ctx = Context.get()
-    awake = keep_awake.KeepAwake.get() if keep_awake.enabled() else contextlib.nullcontext()
     start = time.perf_counter()
-    with awake:  # idle-priority threads keep the CPUs from halting while llvmpipe's threads sleep and wake
-        groups = fused_groups(chain, fuse)
-        # a depth of field first builds its source from the frame on the CPU: no upload of the frame itself
-        tex = None if groups and groups[0][0][0] == "depth_of_field" else ctx.upload_into("frame", hdr)
-        uploaded = tex
-        effects_ns = time.monotonic_ns()  # the first effect's time starts after the frame's upload
-        if not ctx.shared_clock:
-            ctx.timestamp(len(groups))
-        keys = []
-        for i, group in enumerate(groups):
-            (name, params), rest = group[0], group[1:]
-            # row-blocked output for the read-back or for the next Gaussian (its passes read it in place)
-            rows_out = i == len(groups) - 1 or takes_rows(*groups[i + 1][0])
-            out = effect_on_gpu(ctx, name, tex, depth, params, lens, seed, epilogue=rest, host=hdr, rows_out=rows_out)
-            ctx.timestamp(i)
-            keys.append("+".join(n for n, _ in group))
-            if tex is not uploaded:
-                ctx.release(tex)
-            tex = out
-        image = ctx.download(tex, clip)
+    groups = fused_groups(chain, fuse)
+    # a depth of field first builds its source from the frame on the CPU: no upload of the frame itself
+    tex = None if groups and groups[0][0][0] == "depth_of_field" else ctx.upload_into("frame", hdr)
+    uploaded = tex
+    effects_ns = time.monotonic_ns()  # the first effect's time starts after the frame's upload
+    if not ctx.shared_clock:
+        ctx.timestamp(len(groups))
+    keys = []
+    for i, group in enumerate(groups):
+        (name, params), rest = group[0], group[1:]
+        # row-blocked output for the read-back or for the next Gaussian (its passes read it in place)
+        rows_out = i == len(groups) - 1 or takes_rows(*groups[i + 1][0])
+        out = effect_on_gpu(ctx, name, tex, depth, params, lens, seed, epilogue=rest, host=hdr, rows_out=rows_out)
+        ctx.timestamp(i)
+        keys.append("+".join(n for n, _ in group))
         if tex is not uploaded:
             ctx.release(tex)
+        tex = out
+    image = ctx.download(tex, clip)
+    if tex is not uploaded:
+        ctx.release(tex)
     stamps = ctx.timestamps(len(groups) + (not ctx.shared_clock))
     previous = effects_ns if ctx.shared_clock else stamps[-1]
     seconds = {}
