@@ -1,6 +1,6 @@
 # tissuerender — the README's two commands are `make render` and `make test`.
 # Each one sets everything up on a fresh machine first: the virtual environment in .venv,
-# the package with its test extra, and the OSMesa system library (Debian libosmesa6).
+# the package with its test extra, and the Debian packages it needs (python3-venv, libosmesa6).
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV := .venv
@@ -13,9 +13,9 @@ PYTEST_WORKERS ?= 2
 
 .PHONY: setup render test bench clean system-deps
 
-setup: $(STAMP) system-deps
+setup: system-deps $(STAMP)
 
-$(PY):
+$(PY): | system-deps
 	$(PYTHON) -m venv $(VENV)
 
 $(STAMP): pyproject.toml | $(PY)
@@ -23,15 +23,20 @@ $(STAMP): pyproject.toml | $(PY)
 	$(PY) -m pip install --quiet -e '.[test]'
 	touch $@
 
-# libOSMesa.so.8 backs the off-screen OpenGL post-effects backend (postfx osmesa).
+# Debian packages the setup needs, checked before the virtual environment is made:
+# python3-venv (Debian's python3 has no ensurepip without it, so `python3 -m venv` fails) and
+# libosmesa6 (libOSMesa.so.8, the off-screen OpenGL of the postfx osmesa backend). As root they are
+# installed with apt-get; otherwise setup stops with one message naming them.
 system-deps:
-	@if ldconfig -p 2>/dev/null | grep -q 'libOSMesa\.so\.8'; then :; \
+	@missing=""; \
+	$(PYTHON) -c 'import ensurepip, venv' 2>/dev/null || missing="$$missing python3-venv"; \
+	ldconfig -p 2>/dev/null | grep -q 'libOSMesa\.so\.8' || missing="$$missing libosmesa6"; \
+	if [ -z "$$missing" ]; then :; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
-	  echo "installing Debian package libosmesa6 (off-screen OpenGL for postfx)"; \
-	  apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends libosmesa6 >/dev/null; \
+	  echo "installing Debian packages:$$missing"; \
+	  apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends $$missing >/dev/null; \
 	else \
-	  echo "warning: libOSMesa.so.8 not found; install the Debian package libosmesa6 (sudo apt-get install libosmesa6)." >&2; \
-	  echo "         Until then the osmesa post-effects backend is unavailable and backend = \"auto\" uses numpy." >&2; \
+	  echo "error: missing Debian packages:$$missing; install them with: sudo apt-get install$$missing" >&2; exit 2; \
 	fi
 
 render: setup
