@@ -61,3 +61,15 @@ def test_bad_manifest_is_a_user_error(tmp_path, capsys):
     assert main(["golden", "check", str(d)]) == 2
     err = capsys.readouterr().err
     assert "image[0].flip_maxx" in err and "unknown key" in err
+
+
+def test_only_an_unknown_name_is_a_user_error_not_an_empty_pass(tmp_path, capsys):
+    """`golden check --only nosuch` used to print "0 passed, 0 failed" and exit 0."""
+    d = tmp_path / "g"
+    d.mkdir()
+    (d / "manifest.toml").write_text('[[image]]\nname = "liver"\nscene = "s.toml"\n\n'
+                                     '[[image]]\nname = "kidney"\nscene = "s.toml"\n')
+    for command in ("check", "update"):
+        assert main(["golden", command, str(d), "--only", "nosuch"]) == 2
+        err = capsys.readouterr().err
+        assert "'nosuch'" in err and "expected one of liver, kidney" in err and "Traceback" not in err

@@ -136,14 +136,23 @@ def _read_png(path: Path) -> np.ndarray:
     return np.asarray(Image.open(path).convert("RGB"))
 
 
+def selected(directory, only: str | None = None) -> list[GoldenImage]:
+    """The manifest's images, or just the one named ``only`` (a name the manifest lacks is a user error)."""
+    path, manifest = load_manifest(directory)
+    if only is None:
+        return list(manifest.image)
+    chosen = [entry for entry in manifest.image if entry.name == only]
+    if not chosen:
+        names = ", ".join(entry.name for entry in manifest.image)
+        raise UserError(f"{path}: --only {only!r}: no image of that name; expected one of {names}")
+    return chosen
+
+
 def update(directory, only: str | None = None) -> list[Path]:
     """Render every listed image and store it (PNG; plus mean/variance for statistical mode)."""
     directory = Path(directory)
-    _, manifest = load_manifest(directory)
     written = []
-    for entry in manifest.image:
-        if only and entry.name != only:
-            continue
+    for entry in selected(directory, only):
         if entry.mode == "exact":
             write_png(directory / f"{entry.name}.png", _render(entry, directory))
         else:
@@ -158,11 +167,8 @@ def update(directory, only: str | None = None) -> list[Path]:
 def check(directory, only: str | None = None, write_failures: bool = True) -> list[Result]:
     """Compare fresh renders with the stored images; returns one :class:`Result` per image."""
     directory = Path(directory)
-    _, manifest = load_manifest(directory)
     results = []
-    for entry in manifest.image:
-        if only and entry.name != only:
-            continue
+    for entry in selected(directory, only):
         if entry.mode == "exact":
             stored = _to_float(_read_png(directory / f"{entry.name}.png"))
             new = _to_float(_render(entry, directory))
