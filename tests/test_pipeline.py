@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -138,3 +140,17 @@ def test_paint_strokes_stiffen_the_model_and_bad_ones_exit_2(scene_dict, write_s
     assert main(["render", str(path), "-o", str(tmp_path / "bad"), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "objects[0].paint" in err and "non-positive" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("case", ["existing_file", "below_a_file"])
+def test_output_path_that_cannot_be_a_folder_is_a_user_error(scene_dict, write_scene, tmp_path, case):
+    """`-o` naming an existing file, or a folder that cannot be created, used to end in a traceback."""
+    blocker = tmp_path / "taken.png"
+    blocker.write_bytes(b"not a folder")
+    out = blocker if case == "existing_file" else blocker / "frames"
+    proc = subprocess.run([sys.executable, "-m", "tissuerender.cli", "render", str(write_scene(scene_dict)),
+                           "-o", str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert proc.stderr.startswith("error: ") and str(out) in proc.stderr
+    assert blocker.read_bytes() == b"not a folder"  # nothing overwritten

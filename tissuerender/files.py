@@ -11,6 +11,23 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from tissuerender.errors import UserError
+
+
+def output_folder(path) -> Path:
+    """``path`` as an existing, writable folder (created with its parents if missing); a user error naming
+    the path when it is a file, cannot be created, or cannot be written to."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise UserError(f"{path}: the output folder names an existing file; expected a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"{path}: cannot create the output folder: {e.strerror or e}") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise UserError(f"{path}: the output folder is not writable")
+    return path
+
 
 def write_atomic(path: Path, write) -> None:
     """Call ``write(tmp_path)`` then rename onto ``path``. The temporary name keeps ``path``'s suffix, so

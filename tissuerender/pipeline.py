@@ -19,7 +19,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 import postfx
 from sim.output import write_vtu
 from tissuerender.errors import UserError
-from tissuerender.files import write_atomic, write_json, write_npy, write_png
+from tissuerender.files import output_folder, write_atomic, write_json, write_npy, write_png
 from tissuerender.manifest import manifest
 from tissuerender.plan import Plan, make_plan
 from tissuerender.renderer import render_frame
@@ -81,8 +81,7 @@ class RunResult:
 def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, frames: int | None = None) -> RunResult:
     """Render the scene's image sequence into ``out_dir`` (frames, optional HDR/VTU, manifest.json)."""
     start = time.perf_counter()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder(out_dir)
     plan = make_plan(scene)
     recorder = StageRecorder()
     world = build_world(scene, plan, recorder)
