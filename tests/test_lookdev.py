@@ -201,3 +201,26 @@ def test_object_pixels_with_supersampling_are_the_wholly_covered_ones(tmp_path):
         _, stats = lookdev.render_cells(cells, scene_path=str(path), resolution=(96, 72), samples=4)
         counts[ss] = stats[0]["object_pixels"]
     assert 0.8 * counts[1] < counts[2] <= counts[1] + 5 and counts[1] > 200, counts
+
+
+@pytest.mark.parametrize("out, words", [
+    ("sheet.jpg", "expected a .png file name for the contact sheet, found suffix '.jpg'"),
+    ("sheet", "found suffix 'none'"),
+    ("taken.png", "is an existing folder"),
+    ("report_taken.png", "report_taken.json is an existing folder"),
+    ("a_file/sheet.png", "names an existing file; expected a folder"),
+    ("a_file/sub/sheet.png", "cannot create the output folder"),
+])
+def test_a_bad_output_path_fails_before_any_cell_renders(tmp_path, capsys, monkeypatch, out, words):
+    (tmp_path / "taken.png").mkdir()
+    (tmp_path / "report_taken.json").mkdir()
+    (tmp_path / "a_file").write_text("not a folder")
+
+    def must_not_render(*args, **kwargs):
+        raise AssertionError("a cell rendered before the output path was checked")
+
+    monkeypatch.setattr(lookdev, "render_frame_arrays", must_not_render)
+    assert main(["lookdev", "liver", *SMALL, "-o", str(tmp_path / out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: -o ") and words in err and err.count("\n") == 1, err
+

@@ -28,7 +28,7 @@ from pydantic import ValidationError
 import materials
 from materials.optics import OVERRIDABLE, with_overrides
 from tissuerender.errors import UserError
-from tissuerender.files import write_json, write_png
+from tissuerender.files import output_folder, write_json, write_png
 from tissuerender.pipeline import render_frame_arrays
 from tissuerender.scene import load_scene
 from tissuerender.scene.load import read_toml, scene_from_data, short_repr, tomllib
@@ -305,9 +305,23 @@ def contact_sheet(images: list[np.ndarray], labels: list[str], rows: int, cols: 
     return np.asarray(sheet), strip
 
 
-def _write_outputs(out: Path, sheet: np.ndarray, report: dict) -> Path:
+def sheet_path(text: str) -> Path:
+    """The contact sheet's path from ``-o``, checked before any cell renders: a ``.png`` name, neither it nor
+    its ``.json`` report an existing folder, in a folder that exists (or can be created) and is writable."""
+    out = Path(text)
     if out.suffix.lower() != ".png":
-        raise UserError(f"-o {out}: expected a .png file name for the contact sheet")
+        raise UserError(f"-o {out}: expected a .png file name for the contact sheet, found suffix {out.suffix or 'none'!r}")
+    for path in (out, out.with_suffix(".json")):
+        if path.is_dir():
+            raise UserError(f"-o {out}: {path} is an existing folder; expected a file name")
+    try:
+        output_folder(out.parent)
+    except UserError as e:
+        raise UserError(f"-o {out}: {e}") from None
+    return out
+
+
+def _write_outputs(out: Path, sheet: np.ndarray, report: dict) -> Path:
     write_png(out, sheet)
     side = out.with_suffix(".json")
     write_json(side, report)
@@ -332,6 +346,7 @@ def _cmd_lookdev(args) -> int:
         raise UserError(f"--samples: expected 1 ... 1024 light samples, found {args.samples}")
     if not math.isfinite(args.exposure) or abs(args.exposure) > 20:
         raise UserError(f"--exposure: expected -20 ... 20 stops, found {args.exposure}")
+    out = sheet_path(args.out)
     cells, rows, cols, fixed = make_cells(args.material, args.set or [], args.sweep or [])
     images, stats = render_cells(cells, args.shape, args.scene, _resolution(args.resolution), args.samples,
                                  args.exposure, args.frame)
@@ -340,7 +355,7 @@ def _cmd_lookdev(args) -> int:
               "cell_size": [int(images[0].shape[1]), int(images[0].shape[0])], "label_px": strip,
               "preset_optics": {m: {k: getattr(materials.get_preset(m).optics, k) for k in OVERRIDABLE} for m in args.material},
               "set": fixed, "cells": stats}
-    side = _write_outputs(Path(args.out), sheet, report)
+    side = _write_outputs(out, sheet, report)
     if not args.quiet:
         print(f"{'cell':<40} {'pixels':>7} {'mean linear rgb':>26} {'peak lum':>9} {'s':>6}")
         for s in stats:
