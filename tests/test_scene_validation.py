@@ -143,3 +143,100 @@ def test_cli_exit_status_2_and_no_traceback(scene_dict, write_scene):
 def test_cli_validate_accepts_a_good_scene(scene_dict, write_scene, capsys):
     assert main(["validate", str(write_scene(scene_dict))]) == 0
     assert "ok" in capsys.readouterr().out
+
+
+def _surface_object(scene_dict, tmp_path, **extra):
+    (tmp_path / "wall.ply").write_text("ply\n")  # only its existence is checked when the scene loads
+    scene_dict["objects"].append({"name": "wall", "kind": "surface", "mesh": "wall.ply", "material": "peritoneum",
+                                  **extra})
+
+
+def _mesh_body(scene_dict, tmp_path, mesh, **extra):
+    (tmp_path / mesh).write_text("x\n")
+    obj = scene_dict["objects"][0]
+    del obj["shape"], obj["size"], obj["cell_size"]
+    obj.update(mesh=mesh, **extra)
+
+
+def _simulated(scene_dict, **simulation):
+    scene_dict["simulation"] = {"integrator": "xpbd", "gravity": [0.0, 0.0, -9.81], **simulation}
+
+
+def _chain(scene_dict, **effects):
+    scene_dict["effects"].update(effects)
+
+
+# (what the scene sets, the key the error names, words of the message): each an option that was accepted and
+# then had no effect on the render (issue 16 item 3)
+UNUSED = [
+    (lambda d, t: d["camera"].update(focus_distance=0.2), "camera.focus_distance", "depth_of_field"),
+    (lambda d, t: d["camera"].update(aperture=0.002), "camera.aperture", "not in the effect chain"),
+    (lambda d, t: (d["camera"].update(aperture=0.002), _chain(d, depth_of_field={"aperture": 0.003})),
+     "camera.aperture", "set twice: also effects.depth_of_field.aperture"),
+    (lambda d, t: _chain(d, motion=True), "effects.motion", "not implemented"),
+    (lambda d, t: _chain(d, bloom={}, order=["tonemap"]), "effects.order", "'bloom' has an [effects.bloom] table"),
+    (lambda d, t: _chain(d, preset="hd_scope", order=["tonemap", "laparoscope_mask"]), "effects.order",
+     "'chromatic_aberration' has an entry in preset 'hd_scope'"),
+    (lambda d, t: d["output"].update(formats=["png", "vtu"]), "output.formats",
+     "simulates nothing (simulation.integrator = \"none\")"),
+    (lambda d, t: _simulated(d, gravity=[0.0, 0.0, 0.0], write_vtu=True), "simulation.write_vtu",
+     "static scene: no tool, load"),
+    (lambda d, t: _mesh_body(d, t, "body.vtu", scale=2.0), "objects[0].scale", "tet-mesh file"),
+    (lambda d, t: _mesh_body(d, t, "body.vtu", cell_size=0.01), "objects[0].cell_size", "tet-mesh file"),
+    (lambda d, t: _mesh_body(d, t, "body.ply", size=[0.1, 0.1, 0.1]), "objects[0].size", "voxelised"),
+    (lambda d, t: _mesh_body(d, t, "body.ply", scale=2.0), "objects[0].scale", "only cell_size"),
+    (lambda d, t: _surface_object(d, t, render_subdivision=1), "objects[1].render_subdivision", "static surface"),
+    (lambda d, t: _surface_object(d, t, override={"E": 1e4}), "objects[1].override", "never simulated"),
+    (lambda d, t: d["light"].update(attach="world", position=[0, 0, 1], normal=[0, 0, -1], offset=[0.0, 0.01, 0.0]),
+     "light.offset", "world light"),
+    (lambda d, t: d["light"].update(up=[0.0, 1.0, 0.0]), "light.up", "camera-attached"),
+    (lambda d, t: d["light"].update(penumbra_samples=32), "light.penumbra_samples", "effects.shadows"),
+    (lambda d, t: d["light"].update(cone_samples=8), "light.cone_samples", "reflection_cone"),
+    (lambda d, t: _chain(d, sss_thickness="pixel"), "effects.sss_thickness", "effects.sss"),
+    (lambda d, t: _chain(d, ao_samples=4), "effects.ao_samples", "effects.ao"),
+    (lambda d, t: _chain(d, environment_axis=[0.0, 1.0, 0.0]), "effects.environment_axis", "mucus_reflection"),
+    (lambda d, t: _chain(d, mucus_reflection=True, environment_up=[1.0, 1.0, 1.0]), "effects.mucus_reflection",
+     "layered material"),
+    (lambda d, t: (d["effects"].pop("tonemap"), _chain(d, backend="numpy")), "effects.backend", "has none"),
+    (lambda d, t: d["output"].update(jitter=False), "output.jitter", "supersampling = 1"),
+    (lambda d, t: d["simulation"].update(substeps=4), "simulation.substeps", "integrator = \"none\""),
+    (lambda d, t: _simulated(d, cnn={"K": 2.0}), "simulation.cnn", "not selected (integrator = 'xpbd')"),
+    (lambda d, t: _simulated(d, integrator="cnn", iterations=5), "simulation.iterations",
+     "the cnn integrator ignores it (ignored: the CNN has no inner iterations)"),
+    (lambda d, t: _simulated(d, integrator="reference", substeps=2), "simulation.substeps", "reference"),
+    (lambda d, t: _simulated(d, xpbd={"relaxation": 0.5}), "simulation.xpbd.relaxation", "Jacobi"),
+    (lambda d, t: _simulated(d, xpbd={"limit_compliance": 1e-6}), "simulation.xpbd.limit_compliance", "Green-strain"),
+    (lambda d, t: _simulated(d, integrator="cnn", cnn={"energy_rho": 2.0}), "simulation.cnn.energy_rho",
+     "force_model = \"energy\""),
+    (lambda d, t: d.update(tools=[{"name": "p", "radius": 0.01, "length": 0.02,
+                                   "keyframes": [{"t": 0.0, "position": [0, 0, 0.1]}]}]), "tools[0].length", "sphere"),
+    (lambda d, t: d.update(tools=[{"name": "p", "radius": 0.01, "visible": False,
+                                   "keyframes": [{"t": 0.0, "position": [0, 0, 0.1]}]}]), "tools[0].visible",
+     "simulates nothing"),
+]
+
+
+@pytest.mark.parametrize("mutate, key, words", UNUSED, ids=[f"{k}-{i}" for i, (_, k, _) in enumerate(UNUSED)])
+def test_an_option_without_effect_is_an_error_naming_its_key(scene_dict, write_scene, tmp_path, mutate, key, words):
+    mutate(scene_dict, tmp_path)
+    msg = _error(write_scene(scene_dict))
+    assert f": {key}: " in msg and words in msg, msg
+
+
+def test_options_that_do_act_are_accepted(scene_dict, write_scene, tmp_path):
+    """The counterparts of the rejections: the same keys where they change the render."""
+    scene_dict["camera"].update(focus_distance=0.2, aperture=0.003)
+    _chain(scene_dict, depth_of_field={"max_radius_px": 5.0}, sss=True, sss_thickness="pixel",
+           order=["depth_of_field", "tonemap"])
+    _surface_object(scene_dict, tmp_path, scale=2.0)
+    scene_dict["output"].update(supersampling=2, jitter=False)
+    scene = load_scene(write_scene(scene_dict))
+    chain = dict(scene.effect_chain())
+    # the camera's lens feeds the depth of field; the table's own keys stay
+    assert (chain["depth_of_field"].focus_distance, chain["depth_of_field"].aperture) == (0.2, 0.003)
+    assert chain["depth_of_field"].max_radius_px == 5.0
+
+
+def test_a_voxelised_body_takes_its_cell_size(scene_dict, write_scene, tmp_path):
+    _mesh_body(scene_dict, tmp_path, "body.ply", cell_size=0.01)
+    assert load_scene(write_scene(scene_dict)).objects[0].cell_size == 0.01

@@ -53,20 +53,7 @@ def _bodies(scene: Scene):
 
 def motion_sources(scene: Scene) -> list[str]:
     """What makes a body move: tools, prescribed displacements, tractions, gravity on free nodes."""
-    sources = []
-    bodies = _bodies(scene)
-    if not bodies:
-        return sources
-    if scene.tools:
-        sources.append(f"tools ({', '.join(t.name for t in scene.tools)})")
-    for o in bodies:
-        if o.prescribed:
-            sources.append(f"objects.{o.name}.prescribed")
-        if o.tractions:
-            sources.append(f"objects.{o.name}.tractions")
-    if any(abs(g) > 0.0 for g in scene.simulation.gravity):
-        sources.append("simulation.gravity")
-    return sources
+    return scene.motion_sources()
 
 
 def make_plan(scene: Scene) -> Plan:

@@ -21,6 +21,7 @@ from sim.mesh.io import SURFACE_SUFFIXES, TET_SUFFIXES
 from tissuerender.errors import SceneError
 from tissuerender.scene import schema
 from tissuerender.scene.shapes import estimated_tets
+from tissuerender.scene.unused import check_every_option_has_an_effect
 
 try:  # Python 3.11+
     import tomllib
@@ -83,14 +84,44 @@ class Scene:
         p = Path(relative)
         return p if p.is_absolute() else (self.path.parent / p)
 
-    def effect_chain(self) -> list[tuple[str, BaseModel]]:
-        """The post-effects to run, in order: explicit ``order``, else the preset's, else the default."""
+    def motion_sources(self) -> list[str]:
+        """What makes a body move: tools, prescribed displacements, tractions, gravity on free nodes."""
+        bodies = [o for o in self.objects if o.kind == "body"]
+        if not bodies:
+            return []
+        sources = [f"tools ({', '.join(t.name for t in self.tools)})"] if self.tools else []
+        for o in bodies:
+            sources += [f"objects.{o.name}.{k}" for k in ("prescribed", "tractions") if getattr(o, k)]
+        if any(abs(g) > 0.0 for g in self.simulation.gravity):
+            sources.append("simulation.gravity")
+        return sources
+
+    def why_not_simulated(self) -> str | None:
+        """Why no body is simulated (the plan's reason), or None when the scene is simulated."""
+        if not any(o.kind == "body" for o in self.objects):
+            return "no simulated bodies"
+        if self.simulation.integrator == "none":
+            return "simulation.integrator = \"none\""
+        if not self.motion_sources():
+            return "static scene: no tool, load, prescribed motion or gravity moves a body"
+        return None
+
+    def simulated(self) -> bool:
+        return self.why_not_simulated() is None
+
+    def effect_chain(self, feed_camera: bool = True) -> list[tuple[str, BaseModel]]:
+        """The post-effects to run, in order: explicit ``order``, else the preset's, else the default.
+        ``camera.focus_distance`` / ``camera.aperture``, when the scene sets them, are the depth of field's."""
         listed = {name: getattr(self.effects, name) for name in postfx.EFFECTS if getattr(self.effects, name) is not None}
         preset = list(postfx.CAMERA_PRESETS[self.effects.preset]) if self.effects.preset else []
         chain: dict[str, BaseModel] = {}
         for name, params in preset:
             chain[name] = postfx.EFFECTS[name].model_validate(params)
         chain.update(listed)  # the scene's own tables override the preset's parameters
+        lens = {k: getattr(self.camera, k) for k in ("focus_distance", "aperture") if k in self.camera.model_fields_set}
+        if feed_camera and lens and "depth_of_field" in chain:
+            dof = chain["depth_of_field"]
+            chain["depth_of_field"] = type(dof).model_validate({**dof.model_dump(), **lens})
         order = self.effects.order or [n for n in postfx.DEFAULT_ORDER if n in chain]
         return [(name, chain[name]) for name in order]
 
@@ -244,6 +275,9 @@ def _check_references(scene: Scene) -> None:
                                  f"{name!r} is ordered but has no [effects.{name}] table or preset entry")
         if len(set(eff.order)) != len(eff.order):
             raise SceneError(p, "effects.order", f"expected each effect once, found {eff.order}")
-    cam = scene.camera
-    if cam.aperture > 0.0 and cam.focus_distance is None and getattr(eff, "depth_of_field", None) is not None:
-        raise SceneError(p, "camera.focus_distance", "depth of field needs a focus distance, found none")
+        for name in postfx.EFFECTS:  # in registry order, so the message is deterministic
+            if name in available and name not in eff.order:
+                source = f"an [effects.{name}] table" if getattr(eff, name) is not None else f"an entry in preset {eff.preset!r}"
+                raise SceneError(p, "effects.order", f"{name!r} has {source} but is missing from the order, so it would "
+                                 f"not run: list it in order, or remove it")
+    check_every_option_has_an_effect(scene)

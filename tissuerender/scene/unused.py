@@ -1,0 +1,172 @@
+"""Every option a scene sets must change the render: one that would be accepted and then ignored is an error
+naming its key (issue 16, "nothing silent").
+
+Validation of each table on its own (``schema``) cannot see these: whether a key does anything depends on
+other keys (``light.penumbra_samples`` only with ``effects.shadows``, ``cell_size`` only for a procedural or
+voxelised body, an integrator's table only when that integrator is selected). A key counts as *set* when the
+scene file names it (pydantic's ``model_fields_set``), so a default never raises; a value that switches
+something on (``effects.motion = true``, ``penumbra_samples > 0``) counts as set whatever it is.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import materials
+from sim.integrators import REGISTRY
+from sim.mesh.io import TET_SUFFIXES
+from tissuerender.errors import SceneError
+
+# [effects] keys that act only through another switch: key -> (the switch, what the key does)
+EFFECT_DEPENDS = {
+    "sss_thickness": "sss",
+    "ao_distance": "ao",
+    "ao_samples": "ao",
+    "environment_up": "mucus_reflection",
+    "environment_down": "mucus_reflection",
+    "environment_axis": "mucus_reflection",
+}
+
+
+def _set(model) -> set[str]:
+    return set(model.model_fields_set)
+
+
+def check_every_option_has_an_effect(scene) -> None:
+    """Raise :class:`SceneError` naming the first key of ``scene`` (a ``load.Scene``) that would have no effect."""
+    for check in (_objects, _simulation, _tools, _camera, _light, _effects, _output):
+        problem = check(scene)
+        if problem is not None:
+            key, message = problem
+            raise SceneError(scene.path, key, message)
+
+
+def _objects(scene):
+    for i, obj in enumerate(scene.objects):
+        key = f"objects[{i}]"
+        given = _set(obj)
+        if obj.kind == "surface":
+            for name in ("render_subdivision", "override"):
+                if name in given:
+                    return f"{key}.{name}", (f"a static surface is rendered as its file's triangles and never "
+                                             f"simulated: {name!r} has no effect on it (only bodies take it); remove it")
+        elif obj.mesh is not None:
+            tet_file = Path(obj.mesh).suffix.lower() in TET_SUFFIXES
+            unused = ("size", "scale", "cell_size") if tet_file else ("size", "scale")
+            for name in unused:
+                if name in given:
+                    how = ("a body read from a tet-mesh file keeps the file's nodes as they are" if tet_file else
+                           "a body voxelised from a surface file keeps the file's coordinates (only cell_size, "
+                           "the voxel size, applies)")
+                    return f"{key}.{name}", f"{how}: {name!r} has no effect; remove it (or scale the file)"
+    return None
+
+
+def _simulation(scene):
+    sim = scene.simulation
+    given = _set(sim)
+    tables = set(REGISTRY)
+    if sim.integrator == "none":
+        for name in ("dt", "substeps", "iterations", "gravity", "write_vtu", *sorted(tables)):
+            if name in given:
+                return f"simulation.{name}", ("has no effect with integrator = \"none\" (nothing is simulated); "
+                                              "choose an integrator or remove it")
+        return None
+    for name in sorted(tables - {sim.integrator}):
+        if name in given:
+            return f"simulation.{name}", (f"the table of an integrator that is not selected (integrator = "
+                                          f"{sim.integrator!r}) has no effect; remove it")
+    fields = REGISTRY[sim.integrator].settings.model_fields
+    for name in ("substeps", "iterations"):
+        description = fields[name].description or ""
+        if name in given and description.startswith("ignored"):
+            return f"simulation.{name}", f"the {sim.integrator} integrator ignores it ({description}); remove it"
+    table = getattr(sim, sim.integrator)
+    table_given = _set(table)
+    if sim.integrator == "xpbd":
+        if "relaxation" in table_given and table.solver != "jacobi":
+            return "simulation.xpbd.relaxation", "only the Jacobi solver relaxes its steps: set solver = \"jacobi\" or remove it"
+        green = {"green_stretch_min", "green_stretch_max", "shear_max", "strain_hold"} & table_given
+        for name in ("limit_frame", "limit_axes", "limit_compliance"):
+            if name in table_given and not green:
+                return f"simulation.xpbd.{name}", ("shapes the Green-strain limits, but none is set (green_stretch_min, "
+                                                   "green_stretch_max, shear_max or strain_hold); remove it")
+    if sim.integrator == "cnn" and table.force_model != "energy":
+        for name in ("energy_rho", "energy_gradient"):
+            if name in table_given:
+                return f"simulation.cnn.{name}", "only the energy force model uses it: set force_model = \"energy\" or remove it"
+    return None
+
+
+def _tools(scene):
+    for i, tool in enumerate(scene.tools):
+        given = _set(tool)
+        if tool.kind == "sphere":
+            for name in ("length", "axis"):
+                if name in given:
+                    return f"tools[{i}].{name}", "a sphere has no axis or length (only a capsule); remove it"
+        if not tool.visible and not scene.simulated():
+            return f"tools[{i}].visible", ("an invisible tool acts only by pushing simulated tissue, and this scene "
+                                           "simulates nothing: the tool has no effect")
+    return None
+
+
+def _camera(scene):
+    given = _set(scene.camera) & {"focus_distance", "aperture"}
+    if not given:
+        return None
+    in_chain = {name: params for name, params in scene.effect_chain(feed_camera=False)}
+    dof = in_chain.get("depth_of_field")
+    for name in sorted(given):
+        if dof is None:
+            return f"camera.{name}", ("only the depth_of_field post-effect uses the lens's focus and aperture, and it is "
+                                      "not in the effect chain: add [effects.depth_of_field] or remove the key")
+        table = getattr(scene.effects, "depth_of_field", None)
+        if table is not None and name in table.model_fields_set:
+            return f"camera.{name}", (f"set twice: also effects.depth_of_field.{name}; the camera's value feeds the "
+                                      "depth of field, so keep only one")
+    return None
+
+
+def _light(scene):
+    light = scene.light
+    given = _set(light)
+    if light.attach == "world" and "offset" in given:
+        return "light.offset", "a world light is placed by 'position' and 'normal'; 'offset' (camera-attached lights only) has no effect"
+    if light.attach == "camera" and "up" in given:
+        return "light.up", "a camera-attached light is oriented by the camera; 'up' (world lights only) has no effect"
+    if "cone_samples" in given and not light.reflection_cone:
+        return "light.cone_samples", "only the reflection cone uses it: set reflection_cone = true or remove it"
+    if light.penumbra_samples > 0 and not scene.effects.shadows:
+        return "light.penumbra_samples", ("penumbrae come from shadow rays, which are off: set effects.shadows = true "
+                                          "or penumbra_samples = 0")
+    return None
+
+
+def _effects(scene):
+    eff = scene.effects
+    given = _set(eff)
+    if eff.motion:
+        return "effects.motion", ("not implemented: no post-effect reads the velocity channel (there is no motion "
+                                  "blur); remove it")
+    for name, switch in EFFECT_DEPENDS.items():
+        if name in given and not getattr(eff, switch):
+            return f"effects.{name}", f"only effects.{switch} uses it, and that is off: set {switch} = true or remove it"
+    if eff.mucus_reflection and not any(materials.get_preset(o.material).optics.layers is not None
+                                        for o in scene.objects):
+        return "effects.mucus_reflection", ("only a layered material (colon_mucosa) has a mucus coat, and no object "
+                                            "is made of one: the reflection has no effect")
+    if "backend" in given and not scene.effect_chain():
+        return "effects.backend", "chooses how the post-effects run, but the scene has none; remove it"
+    return None
+
+
+def _output(scene):
+    out = scene.output
+    if "jitter" in _set(out) and out.supersampling == 1:
+        return "output.jitter", "jitters the supersamples within a pixel, but supersampling = 1; remove it"
+    if not scene.simulated():
+        for key, on in (("output.formats", "vtu" in out.formats), ("simulation.write_vtu", scene.simulation.write_vtu)):
+            if on:
+                return key, (f"vtu writes the simulated state, but this scene simulates nothing "
+                             f"({scene.why_not_simulated()}): only the manifest would be written; remove vtu")
+    return None
