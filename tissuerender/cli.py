@@ -10,6 +10,7 @@ import sys
 
 from sim.errors import MeshError
 from tissuerender import golden, load_scene, lookdev, make_plan, render
+from tissuerender.checks import check_scene
 from tissuerender.errors import UserError
 
 
@@ -33,7 +34,9 @@ def _cmd_plan(args) -> int:
 def _cmd_validate(args) -> int:
     for path in args.scenes:
         scene = load_scene(path)
-        print(f"{path}: ok ({scene.name!r}, {len(scene.objects)} object(s), {scene.output.frames} frame(s))")
+        checked = check_scene(scene)  # builds what render builds before its first frame: "ok" means it renders
+        print(f"{path}: ok ({scene.name!r}, {len(scene.objects)} object(s), {scene.output.frames} frame(s), "
+              f"{len(checked.plan.stages)} stage(s) planned)")
     return 0
 
 
