@@ -35,14 +35,16 @@ MAX_SIM_STEPS = 2_000_000
 class SceneFile(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
 
-    scene: schema.SceneInfo
-    objects: Annotated[list[schema.ObjectSpec], Field(min_length=1, max_length=64)]
-    simulation: schema.Simulation = schema.Simulation()
-    tools: Annotated[list[schema.Tool], Field(max_length=16)] = []
-    camera: schema.Camera
-    light: schema.Light = schema.Light()
-    effects: dict = {}
-    output: schema.Output = schema.Output()
+    scene: schema.SceneInfo = Field(description="the scene's name and seed")
+    objects: Annotated[list[schema.ObjectSpec], Field(min_length=1, max_length=64, description=(
+        "bodies (simulated tet meshes) and static surfaces (rendered triangle meshes)"))]
+    simulation: schema.Simulation = Field(schema.Simulation(), description="how bodies move")
+    tools: Annotated[list[schema.Tool], Field(max_length=16, description=(
+        "rigid probes on keyframed paths: drawn, and pushing simulated tissue"))] = []
+    camera: schema.Camera = Field(description="the laparoscope's view")
+    light: schema.Light = Field(schema.Light(), description="a rectangular area light")
+    effects: dict = Field({}, description="renderer switches and post-effect tables (validated as schema.Effects)")
+    output: schema.Output = Field(schema.Output(), description="what to write")
 
 
 @dataclass(frozen=True)

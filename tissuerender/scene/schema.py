@@ -36,16 +36,19 @@ class Strict(BaseModel):
 
 
 class SceneInfo(Strict):
-    name: Annotated[str, Field(min_length=1, max_length=200)]
-    seed: Annotated[int, Field(ge=0, le=2**31 - 1)] = 0
+    name: Annotated[str, Field(min_length=1, max_length=200, description="name used in messages and the manifest")]
+    seed: Annotated[int, Field(ge=0, le=2**31 - 1, description=(
+        "master seed: per-frame seeds derive from it, so the same scene and seed give the same pixels"))] = 0
 
 
 class Region(Strict):
     """A node set: one face of the body's bounding box (``side``) or an axis-aligned box."""
 
-    side: Literal[AXES] | None = None  # type: ignore[valid-type]
-    box_min: Vec3 | None = None
-    box_max: Vec3 | None = None
+    side: Literal[AXES] | None = Field(  # type: ignore[valid-type]
+        None, description="the nodes on that face of the body's bounding box (or give box_min and box_max)")
+    box_min: Vec3 | None = Field(None, description="lower corner of an axis-aligned box in world coordinates [m]; "
+                                 "the nodes inside it (with box_max)")
+    box_max: Vec3 | None = Field(None, description="upper corner of the box [m] (with box_min)")
 
     @model_validator(mode="after")
     def _one_selector(self):
@@ -62,30 +65,36 @@ class Region(Strict):
 class Prescribed(Region):
     """Nodes of a region moved by ``displacement`` [m], ramped linearly from t_start to t_end [s]."""
 
-    displacement: Vec3
-    t_start: Annotated[float, Field(ge=0.0)] = 0.0
-    t_end: Annotated[float, Field(ge=0.0)] = 0.0
+    displacement: Annotated[Vec3, Field(description="displacement of the region's nodes [m]")]
+    t_start: Annotated[float, Field(ge=0.0, description="start of the linear ramp [s]")] = 0.0
+    t_end: Annotated[float, Field(ge=0.0, description=(
+        "end of the ramp [s]; a step at t_start when t_end <= t_start"))] = 0.0
 
 
 class Traction(Region):
     """A constant surface traction [Pa] over the region's boundary faces (integrated to nodal forces)."""
 
-    traction: Vec3
+    traction: Annotated[Vec3, Field(description=(
+        "constant traction [Pa] over the boundary faces whose three nodes lie in the region"))]
 
 
 class PaintStroke(Strict):
     """A poly6 stiffness stroke (Qian 4.26-4.28): the stiffness multiplier rises by ``amount`` at
     ``centre`` and falls smoothly to nothing at ``radius``."""
 
-    centre: Vec3
-    radius: Annotated[float, Field(gt=0.0, le=10.0)]
-    amount: Annotated[float, Field(gt=-1.0, le=1e4)]
+    centre: Annotated[Vec3, Field(description="centre of the stroke [m]")]
+    radius: Annotated[float, Field(gt=0.0, le=10.0, description="radius h of the poly6 kernel [m]")]
+    amount: Annotated[float, Field(gt=-1.0, le=1e4, description=(
+        "a: each node within h gets a (1 - v^2/h^2)^3; each tet's E (and both Lame parameters) is multiplied by "
+        "1 + the mean weight of its nodes; a stroke that would make a stiffness non-positive is an error"))]
 
 
 class MaterialOverride(Strict):
-    E: Annotated[float, Field(gt=0.0, le=1e9)] | None = None
-    nu: Annotated[float, Field(ge=0.0, lt=0.5)] | None = None
-    density: Annotated[float, Field(gt=0.0, le=1e5)] | None = None
+    """Replaces values of the preset's mechanics (``materials.mechanics``) for one body."""
+
+    E: Annotated[float, Field(gt=0.0, le=1e9)] | None = Field(None, description="Young's modulus [Pa]")
+    nu: Annotated[float, Field(ge=0.0, lt=0.5)] | None = Field(None, description="Poisson ratio [-]")
+    density: Annotated[float, Field(gt=0.0, le=1e5)] | None = Field(None, description="mass density [kg/m^3]")
 
 
 Unit = Annotated[float, Field(ge=0.0, le=1.0)]
@@ -96,12 +105,16 @@ class OpticsOverride(Strict):
     """Replaces values of the preset's optics (``materials.optics.OpticalMaterial``) for one object; what
     ``tissuerender lookdev`` prints for a look to keep."""
 
-    albedo: UnitRGB | None = None
-    roughness: Annotated[float, Field(ge=1e-3, le=1.0)] | None = None
-    ior: Annotated[float, Field(ge=1.0, le=3.0)] | None = None
-    k_sss: Unit | None = None
-    sigma: Annotated[list[Annotated[float, Field(gt=0.0, le=1e6)]], Field(min_length=3, max_length=3)] | None = None
-    sss_colour: UnitRGB | None = None
+    albedo: UnitRGB | None = Field(None, description=(
+        "diffuse albedo (linear RGB); not for a layered material (colon_mucosa: its colour comes from its layers)"))
+    roughness: Annotated[float, Field(ge=1e-3, le=1.0)] | None = Field(None, description=(
+        "GGX alpha of the tissue's specular lobe (a layered material's mucus coat keeps its own)"))
+    ior: Annotated[float, Field(ge=1.0, le=3.0)] | None = Field(None, description=(
+        "index of refraction (Fresnel F0 = ((n - 1)/(n + 1))^2)"))
+    k_sss: Unit | None = Field(None, description="subsurface weight (Qian eq. 6.5); not for plastic")
+    sigma: Annotated[list[Annotated[float, Field(gt=0.0, le=1e6)]], Field(min_length=3, max_length=3)] | None = Field(
+        None, description="effective attenuation [1/m] of the thickness term exp(-sigma T) (Qian eq. 6.8); not for plastic")
+    sss_colour: UnitRGB | None = Field(None, description="subsurface colour (C = sss_colour / pi); not for plastic")
 
     def values(self) -> dict:
         """The keys the scene sets (None: not set)."""
@@ -111,22 +124,39 @@ class OpticsOverride(Strict):
 class ObjectSpec(Strict):
     """A simulated body (``kind = "body"``) or a static surface from a file (``kind = "surface"``)."""
 
-    name: Annotated[str, Field(min_length=1, max_length=200)]
-    kind: Literal["body", "surface"] = "body"
-    material: str
-    shape: Literal[SHAPES] | None = None  # type: ignore[valid-type]
-    size: Vec3 | None = None
-    cell_size: Annotated[float, Field(gt=0.0, le=10.0)] | None = None
-    scale: Annotated[float, Field(gt=0.0, le=1e3)] | None = None
-    mesh: str | None = None
-    position: Vec3 = [0.0, 0.0, 0.0]
-    render_subdivision: Annotated[int, Field(ge=0, le=3)] = 0
-    override: MaterialOverride | None = None
-    optics: OpticsOverride | None = None
-    fixed: list[Region] = []
-    prescribed: list[Prescribed] = []
-    tractions: list[Traction] = []
-    paint: Annotated[list[PaintStroke], Field(max_length=1000)] = []
+    name: Annotated[str, Field(min_length=1, max_length=200, description="unique among objects")]
+    kind: Literal["body", "surface"] = Field("body", description=(
+        "a simulated tet-mesh body, or a static surface (a triangle mesh that is only rendered)"))
+    material: str = Field(description=(
+        "material preset (materials/): liver, kidney, colon_mucosa, fat, fascia, peritoneum, plastic; mechanics "
+        "and optics together"))
+    shape: Literal[SHAPES] | None = Field(None, description=(  # type: ignore[valid-type]
+        "procedural body (a body has exactly one of shape or mesh)"))
+    size: Vec3 | None = Field(None, description=(
+        "bounding box [m] of a box-like shape; default per shape: box (1, 1, 1), beam (2, 0.2, 0.2), cube (2, 2, 2; "
+        "equal sides), cylinder ([diameter, diameter, length], axis z; 1, 1, 2), slab (0.2, 0.2, 0.03)"))
+    cell_size: Annotated[float, Field(gt=0.0, le=10.0)] | None = Field(None, description=(
+        "grid cell [m] of a procedural tet mesh (default min(size)/4, organs scale/6) or of the voxelised surface "
+        "of a mesh body (default 1/8 of its smallest extent); a body may have at most 400,000 tets"))
+    scale: Annotated[float, Field(gt=0.0, le=1e3)] | None = Field(None, description=(
+        "size [m] of an organ shape (liver 0.15, kidney 0.11 by default); for a static surface, a uniform scale "
+        "of the file's coordinates"))
+    mesh: str | None = Field(None, description=(
+        "path relative to the scene: a body's tet mesh (.msh, .vtu, .vtk, .mesh, read with meshio) or closed "
+        "surface (.ply, .obj, .stl, voxelised into tets of cell_size); a static surface's triangles (.ply, .obj, "
+        ".stl, read with trimesh; vertex normals and UVs in the file are kept)"))
+    position: Vec3 = Field([0.0, 0.0, 0.0], description="translation applied to the mesh [m]")
+    render_subdivision: Annotated[int, Field(ge=0, le=3, description=(
+        "body: levels of 4-to-1 subdivision of the render surface, embedded in the tets by barycentric coordinates "
+        "(organ shapes also get a Taubin-smoothed render surface, so the voxel staircase does not show)"))] = 0
+    override: MaterialOverride | None = Field(None, description="body: replace the preset's mechanics (table below)")
+    optics: OpticsOverride | None = Field(None, description=(
+        "replace optical values of the preset (table below); tissuerender lookdev prints the table for a look"))
+    fixed: list[Region] = Field([], description="body: regions whose nodes are held at rest")
+    prescribed: list[Prescribed] = Field([], description="body: regions moved by a displacement ramp (table below)")
+    tractions: list[Traction] = Field([], description="body: regions loaded by a constant traction (table below)")
+    paint: Annotated[list[PaintStroke], Field(max_length=1000)] = Field([], description=(
+        "body: heterogeneous stiffness, poly6 strokes (Qian 4.26-4.28; table below)"))
 
     @model_validator(mode="after")
     def _geometry_source(self):
@@ -143,34 +173,40 @@ class ObjectSpec(Strict):
 
 
 class Simulation(Strict):
-    integrator: Literal[INTEGRATORS] = "none"  # type: ignore[valid-type]
+    integrator: Literal[INTEGRATORS] = Field("none", description=(  # type: ignore[valid-type]
+        "how bodies move; none renders them at rest"))
     dt: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0 / 60.0
-    substeps: Annotated[int, Field(ge=1, le=1000)] = 10
-    iterations: Annotated[int, Field(ge=1, le=10000)] = 10
-    gravity: Vec3 = [0.0, 0.0, -9.81]
-    write_vtu: bool = False
+    substeps: Annotated[int, Field(ge=1, le=1000, description=(
+        "substeps per step (xpbd, ebm, cnn, cnn_chainmail, explicit)"))] = 10
+    iterations: Annotated[int, Field(ge=1, le=10000, description=(
+        "solver iterations per substep (xpbd, ebm, cnn_chainmail)"))] = 10
+    gravity: Vec3 = Field([0.0, 0.0, -9.81], description=(
+        "gravity [m/s^2]; a non-zero gravity alone makes a scene dynamic"))
+    write_vtu: bool = Field(False, description=(
+        "also write the simulation state of each frame as .vtu for ParaView (as formats = [..., \"vtu\"])"))
     # each integrator's table is its own scene settings model (sim.integrators: declared once, with the integrator)
-    xpbd: XPBDSceneSettings = XPBDSceneSettings()
-    reference: ReferenceSceneSettings = ReferenceSceneSettings()
-    ebm: EBMSceneSettings = EBMSceneSettings()
-    cnn: CNNSceneSettings = CNNSceneSettings()
-    cnn_chainmail: ChainMailSceneSettings = ChainMailSceneSettings()
-    explicit: ExplicitSceneSettings = ExplicitSceneSettings()
+    xpbd: XPBDSceneSettings = Field(XPBDSceneSettings(), description="the xpbd integrator's table (below)")
+    reference: ReferenceSceneSettings = Field(ReferenceSceneSettings(), description="the reference integrator's table")
+    ebm: EBMSceneSettings = Field(EBMSceneSettings(), description="the ebm integrator's table")
+    cnn: CNNSceneSettings = Field(CNNSceneSettings(), description="the cnn integrator's table")
+    cnn_chainmail: ChainMailSceneSettings = Field(ChainMailSceneSettings(), description="the cnn_chainmail integrator's table")
+    explicit: ExplicitSceneSettings = Field(ExplicitSceneSettings(), description="the explicit integrator's table")
 
 
 class Keyframe(Strict):
-    t: Annotated[float, Field(ge=0.0, le=1e6)]
-    position: Vec3
+    t: Annotated[float, Field(ge=0.0, le=1e6, description="time [s]")]
+    position: Annotated[Vec3, Field(description="the tool's position at t [m]")]
 
 
 class Tool(Strict):
-    name: Annotated[str, Field(min_length=1, max_length=200)]
-    kind: Literal["sphere", "capsule"] = "sphere"
-    radius: Annotated[float, Field(gt=0.0, le=10.0)]
-    length: Annotated[float, Field(ge=0.0, le=10.0)] = 0.0
-    axis: Vec3 = [0.0, 0.0, 1.0]
-    visible: bool = True
-    keyframes: Annotated[list[Keyframe], Field(min_length=1, max_length=10000)]
+    name: Annotated[str, Field(min_length=1, max_length=200, description="unique among tools")]
+    kind: Literal["sphere", "capsule"] = Field("sphere", description="rigid probe shape")
+    radius: Annotated[float, Field(gt=0.0, le=10.0, description="probe radius [m]")]
+    length: Annotated[float, Field(ge=0.0, le=10.0, description="capsule segment length [m] (> 0 for a capsule)")] = 0.0
+    axis: Vec3 = Field([0.0, 0.0, 1.0], description="capsule axis (non-zero)")
+    visible: bool = Field(True, description="render the tool (it pushes tissue only when the scene is simulated)")
+    keyframes: Annotated[list[Keyframe], Field(min_length=1, max_length=10000, description=(
+        "path, linearly interpolated, times strictly increasing (table below)"))]
 
     @model_validator(mode="after")
     def _ordered(self):
@@ -185,14 +221,17 @@ class Tool(Strict):
 
 
 class Camera(Strict):
-    position: Vec3
-    look_at: Vec3
-    up: Vec3 = [0.0, 0.0, 1.0]
-    fov_deg: Annotated[float, Field(gt=1.0, lt=179.0)] = 70.0
-    near: Annotated[float, Field(gt=0.0, le=1e3)] = 0.005
-    far: Annotated[float, Field(gt=0.0, le=1e5)] = 10.0
-    focus_distance: Annotated[float, Field(gt=0.0, le=1e5)] | None = None
-    aperture: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
+    position: Annotated[Vec3, Field(description="laparoscope tip [m]")]
+    look_at: Annotated[Vec3, Field(description="point in the centre of the view [m] (not equal to position)")]
+    up: Vec3 = Field([0.0, 0.0, 1.0], description="up direction (not parallel to the view)")
+    fov_deg: Annotated[float, Field(gt=1.0, lt=179.0, description="horizontal field of view [deg]")] = 70.0
+    near: Annotated[float, Field(gt=0.0, le=1e3, description="near clip distance [m]")] = 0.005
+    far: Annotated[float, Field(gt=0.0, le=1e5, description="far clip distance [m] (> near)")] = 10.0
+    focus_distance: Annotated[float, Field(gt=0.0, le=1e5)] | None = Field(None, description=(
+        "thin-lens focus distance [m]: the depth_of_field effect's (it must be in the effect chain, and its table "
+        "must not set it too)"))
+    aperture: Annotated[float, Field(ge=0.0, le=1.0, description=(
+        "thin-lens aperture radius [m]: the depth_of_field effect's, as focus_distance"))] = 0.0
 
     @model_validator(mode="after")
     def _frame(self):
@@ -212,27 +251,49 @@ class ImportanceStroke(Strict):
     """A painted light-sampling region (Qian Fig. 6.15): shading points within ``radius`` of ``centre``
     get up to ``multiplier`` times the light samples."""
 
-    centre: Vec3
-    radius: Annotated[float, Field(gt=0.0, le=10.0)]
-    multiplier: Annotated[float, Field(ge=1.0, le=64.0)]
+    centre: Annotated[Vec3, Field(description="centre of the painted region [m]")]
+    radius: Annotated[float, Field(gt=0.0, le=10.0, description="radius [m] (smooth poly6 falloff)")]
+    multiplier: Annotated[float, Field(ge=1.0, le=64.0, description=(
+        "up to multiplier x samples within radius; each sample still weighs A/m, so only noise moves"))]
 
 
 class Light(Strict):
-    attach: Literal["camera", "world"] = "camera"
-    size: Vec2Pos = [0.01, 0.01]
-    radiance: RGB = [2000.0, 2000.0, 2000.0]
-    offset: Vec3 = [0.0, 0.0, 0.0]
-    position: Vec3 | None = None
-    normal: Vec3 | None = None
-    up: Vec3 = [0.0, 0.0, 1.0]
-    sampling: Literal["adaptive", "uniform", "importance"] = "adaptive"
-    samples: Annotated[int, Field(ge=1, le=4096)] = 16
-    importance: Annotated[list[ImportanceStroke], Field(max_length=1000)] = []
-    reflection_cone: bool = False
-    cone_samples: Annotated[int, Field(ge=1, le=4096)] = 16
-    pattern: Literal["blue_noise", "white_noise"] = "blue_noise"
-    estimator: Literal["mc", "ratio"] = "ratio"
-    penumbra_samples: Annotated[int, Field(ge=0, le=4096)] = 0
+    attach: Literal["camera", "world"] = Field("camera", description=(
+        "at the scope tip (moves with the camera) or placed in the world"))
+    size: Vec2Pos = Field([0.01, 0.01], description="rectangle size [m]")
+    radiance: RGB = Field([2000.0, 2000.0, 2000.0], description=(
+        "emitted radiance [W/(m^2 sr)] (a laparoscope light guide is small and bright: E = L A cos / d^2)"))
+    offset: Vec3 = Field([0.0, 0.0, 0.0], description=(
+        "camera-attached light: offset [m] in the camera frame (x right, y up, z forward)"))
+    position: Vec3 | None = Field(None, description="world light: centre [m] (required)")
+    normal: Vec3 | None = Field(None, description="world light: emitting direction (required)")
+    up: Vec3 = Field([0.0, 0.0, 1.0], description="world light: orientation of the rectangle's height")
+    sampling: Literal["adaptive", "uniform", "importance"] = Field("adaptive", description=(
+        "adaptive count m(d) by distance (Qian 6.15-6.16: samples up to 0.08 m, half up to 0.16 m, a quarter "
+        "beyond; each sample weighs A/m(d)), uniform (always samples), or painted importance (Qian Fig. 6.15)"))
+    samples: Annotated[int, Field(ge=1, le=4096, description=(
+        "light samples per point (the maximum m for adaptive sampling)"))] = 16
+    importance: Annotated[list[ImportanceStroke], Field(max_length=1000)] = Field([], description=(
+        "painted sampling regions for sampling = \"importance\" (table below)"))
+    reflection_cone: bool = Field(False, description=(
+        "also sample the part of the light inside the specular reflection cone (Qian 6.21, made unbiased: the light "
+        "is split into that rectangle and the rest, each sampled with its own A/m weight; the cone's half-angle "
+        "comes from the GGX lobe width, where D falls to a tenth of its peak)"))
+    cone_samples: Annotated[int, Field(ge=1, le=4096, description=(
+        "samples inside the reflection cone per point (with reflection_cone)"))] = 16
+    pattern: Literal["blue_noise", "white_noise"] = Field("blue_noise", description=(
+        "per-pixel offsets of the light samples: a tiled blue-noise texture (the supersamples of a pixel draw one "
+        "interleaved stratified set), or an independent uniform offset per shading point (docs/renderer.md)"))
+    estimator: Literal["mc", "ratio"] = Field("ratio", description=(
+        "the diffuse lobe's estimate (\"mc\" by default with reflection_cone): the ratio estimator (Heitz, Hill "
+        "& McGuire 2018: the closed-form unshadowed irradiance of the rectangle times the sampled (f V)/(n.wi), "
+        "exact where the light is unoccluded and the lobe Lambertian, consistent as m grows), or plain Monte Carlo "
+        "(sum of f V A/m, unbiased); specular lobes stay Monte Carlo; ratio needs the numba shading pass, so not "
+        "with reflection_cone"))
+    penumbra_samples: Annotated[int, Field(ge=0, le=4096, description=(
+        "needs effects.shadows: pixels whose first shadow rays disagree, and their 8 neighbours, are shaded again "
+        "with this many samples per point (at least samples), replacing the first ones; adaptive, so slightly "
+        "biased where the first rays all agree inside a penumbra; 0: off; not with reflection_cone"))] = 0
 
     @model_validator(mode="before")
     @classmethod
@@ -270,12 +331,18 @@ class Light(Strict):
 
 
 class Output(Strict):
-    resolution: Annotated[list[Annotated[int, Field(ge=8, le=8192)]], Field(min_length=2, max_length=2)] = [640, 480]
-    frames: Annotated[int, Field(ge=1, le=100000)] = 1
-    fps: Annotated[float, Field(gt=0.0, le=10000.0)] = 24.0
-    formats: Annotated[list[Literal[FORMATS]], Field(min_length=1)] = ["png"]  # type: ignore[valid-type]
-    supersampling: Annotated[int, Field(ge=1, le=8)] = 1
-    jitter: bool = True
+    resolution: Annotated[list[Annotated[int, Field(ge=8, le=8192)]], Field(min_length=2, max_length=2, description=(
+        "image size [width, height] in pixels"))] = [640, 480]
+    frames: Annotated[int, Field(ge=1, le=100000, description="number of frames")] = 1
+    fps: Annotated[float, Field(gt=0.0, le=10000.0, description=(
+        "frames per second (frame k shows time (k-1)/fps)"))] = 24.0
+    formats: Annotated[list[Literal[FORMATS]], Field(min_length=1, description=(  # type: ignore[valid-type]
+        "frame_0001.png..., float32 HDR radiance frame_0001.npy, simulation state NAME_0001.vtu (needs a "
+        "simulated scene)"))] = ["png"]
+    supersampling: Annotated[int, Field(ge=1, le=8, description="N x N samples per pixel, box-filtered")] = 1
+    jitter: bool = Field(True, description=(
+        "with supersampling > 1, each sample at a seeded random point of its own cell (stratified jitter); false: "
+        "the cell centres"))
 
 
 class EffectsBase(Strict):
@@ -283,25 +350,41 @@ class EffectsBase(Strict):
     tables are added from ``postfx.EFFECTS`` (see ``effects_model``)."""
 
     shadows: Annotated[bool, Field(description="shadow rays against a BVH")] = False
-    sss: Annotated[bool, Field(description="thickness-based subsurface term C exp(-sigma T) (Qian eq. 6.8)")] = False
+    sss: Annotated[bool, Field(description=(
+        "thickness-based subsurface term C exp(-sigma T) (Qian eq. 6.8); adds the thickness pass (and the BVH)"))] = False
     sss_thickness: Annotated[Literal["vertex", "pixel"], Field(
-        description="thickness rays from the render surface's vertices, or from every shading point")] = "vertex"
-    ao: Annotated[bool, Field(description="ambient occlusion of the ambient light; needs a non-zero ambient")] = False
-    ambient: Annotated[RGB, Field(description="uniform environment radiance [W m^-2 sr^-1]")] = [0.0, 0.0, 0.0]
-    ao_distance: Annotated[float, Field(gt=0.0, le=100.0, description="occlusion ray length [m]")] = 0.02
-    ao_samples: Annotated[int, Field(ge=1, le=256, description="occlusion rays per shading point")] = 8
+        description="with sss: thickness rays from the render surface's vertices, interpolated over each triangle, "
+                    "or from every shading point")] = "vertex"
+    ao: Annotated[bool, Field(description=(
+        "ambient occlusion: the ambient light is scaled by the cosine-weighted visibility of the hemisphere within "
+        "ao_distance (ao_samples rays per point against the BVH); needs a non-zero ambient"))] = False
+    ambient: Annotated[RGB, Field(description=(
+        "uniform environment radiance [W m^-2 sr^-1] (light scattered around the abdomen): adds albedo x ambient "
+        "to every visible point"))] = [0.0, 0.0, 0.0]
+    ao_distance: Annotated[float, Field(gt=0.0, le=100.0, description="with ao: occlusion ray length [m]")] = 0.02
+    ao_samples: Annotated[int, Field(ge=1, le=256, description="with ao: occlusion rays per shading point")] = 8
     mucus_reflection: Annotated[bool, Field(
-        description="the mucus coat reflects the gradient environment (Qian §7.2.2)")] = False
+        description="the wet mucus coat of a layered material (colon_mucosa) reflects the gradient environment, held as "
+                    "low-order spherical harmonics (Qian §7.2.2; tissuerender/renderer/sh.py)")] = False
     environment_up: Annotated[RGB, Field(
-        description="environment radiance towards environment_axis [W m^-2 sr^-1]")] = [0.0, 0.0, 0.0]
+        description="with mucus_reflection: environment radiance towards environment_axis [W m^-2 sr^-1] (the lit "
+                    "cavity in front of the scope)")] = [0.0, 0.0, 0.0]
     environment_down: Annotated[RGB, Field(
-        description="environment radiance away from environment_axis [W m^-2 sr^-1]")] = [0.0, 0.0, 0.0]
-    environment_axis: Annotated[Vec3, Field(description="the environment gradient's axis (non-zero)")] = [0.0, 0.0, 1.0]
-    motion: Annotated[bool, Field(description="per-pixel velocity channel")] = False
+        description="with mucus_reflection: environment radiance away from environment_axis [W m^-2 sr^-1] (the "
+                    "darker surround)")] = [0.0, 0.0, 0.0]
+    environment_axis: Annotated[Vec3, Field(description="with mucus_reflection: the environment gradient's axis (non-zero)")] = [0.0, 0.0, 1.0]
+    motion: Annotated[bool, Field(description=(
+        "a per-pixel velocity channel for motion blur: not implemented (no post-effect reads it), so true is an "
+        "error"))] = False
     backend: Annotated[Literal["auto", "numpy", "osmesa"], Field(
-        description="post-effects backend: NumPy reference, off-screen OpenGL, or OpenGL when available")] = "auto"
-    preset: Annotated[str | None, Field(description="a camera preset of postfx.CAMERA_PRESETS")] = None
-    order: Annotated[list[str] | None, Field(description="explicit order of the post-effects")] = None
+        description="post-effects backend: numpy (reference), osmesa (off-screen OpenGL, needs Debian libosmesa6), "
+                    "auto (osmesa when available, else numpy)")] = "auto"
+    preset: Annotated[str | None, Field(description=(
+        "a camera preset of postfx.CAMERA_PRESETS (hd_scope, old_scope): its effects with their parameters; the "
+        "scene's own [effects.NAME] tables override them"))] = None
+    order: Annotated[list[str] | None, Field(description=(
+        "explicit order of the post-effects (default: postfx.DEFAULT_ORDER); it must list every effect that has a "
+        "table or comes from the preset, each once"))] = None
 
     @model_validator(mode="after")
     def _reflection_needs_an_environment(self):
@@ -323,4 +406,7 @@ class EffectsBase(Strict):
 # The [effects] table: EffectsBase plus one optional [effects.NAME] table per post-effect of the registry,
 # validated by that effect's own parameter model (declared once, in its postfx module).
 Effects = create_model("Effects", __base__=EffectsBase,
-                       **{name: (model | None, None) for name, model in EFFECTS.items()})
+                       **{name: (model | None, Field(None, description=(
+                           f"the {name} post-effect's parameters (table below; docs/postfx.md); an empty table "
+                           "uses the defaults")))
+                          for name, model in EFFECTS.items()})
