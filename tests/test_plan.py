@@ -13,11 +13,54 @@ from tissuerender.cli import main
 SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
 
 
+# Each shipped scene's stages, read off its file by hand: what moves it, which switches are on, which effects
+# it lists (or its preset brings), which formats it writes.
+SHIPPED_PLANS = {
+    # xpbd, a prescribed ramp, viscoelastic colon_mucosa; sss; preset hd_scope plus a depth_of_field table
+    "colon_mucosa": ["mesh", "simulate", "prony_state", "embed", "raster", "bvh", "thickness", "shade",
+                     "postfx.depth_of_field", "postfx.chromatic_aberration", "postfx.tonemap",
+                     "postfx.laparoscope_mask", "write_png"],
+    # xpbd with a probe and gravity; shadows and sss; three effect tables
+    "default": ["mesh", "simulate", "contact", "embed", "raster", "bvh", "shadow_rays", "thickness", "shade",
+                "postfx.chromatic_aberration", "postfx.tonemap", "postfx.laparoscope_mask", "write_png"],
+    # integrator "none": nothing simulated; sss; two effect tables
+    "kidney_static": ["mesh", "raster", "bvh", "thickness", "shade", "postfx.tonemap", "postfx.laparoscope_mask",
+                      "write_png"],
+    # a body and a static wall, a capsule probe; shadows and sss; preset hd_scope
+    "liver_probe": ["mesh", "load_surface", "simulate", "contact", "embed", "raster", "bvh", "shadow_rays",
+                    "thickness", "shade", "postfx.chromatic_aberration", "postfx.tonemap", "postfx.laparoscope_mask",
+                    "write_png"],
+    # prescribed compression, no gravity, no tools; shadows; png and vtu
+    "zhang_cylinder": ["mesh", "simulate", "embed", "write_vtu", "raster", "bvh", "shadow_rays", "shade",
+                       "postfx.tonemap", "write_png"],
+}
+
+
 @pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
-def test_every_shipped_scene_plans(path, capsys):
+def test_every_shipped_scene_plans_exactly_its_stages(path, capsys):
+    assert make_plan(load_scene(path)).names == SHIPPED_PLANS[path.stem]
     assert main(["plan", str(path)]) == 0
     out = capsys.readouterr().out
-    assert "stages that will run:" in out and "raster" in out and "shade" in out
+    ran, _, skipped = out.partition("stages that will not run:")
+    assert [line.split()[0] for line in ran.splitlines()[2:]] == SHIPPED_PLANS[path.stem]
+    assert all(line.split()[0] not in SHIPPED_PLANS[path.stem] for line in skipped.splitlines()[1:])
+
+
+def test_an_order_must_list_every_effect_with_a_table_and_the_plan_follows_it(scene_dict, write_scene, capsys):
+    scene_dict["effects"].update(preset="hd_scope", bloom={}, order=["bloom", "tonemap", "chromatic_aberration"])
+    path = write_scene(scene_dict)
+    assert main(["plan", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "effects.order: 'laparoscope_mask' has an entry in preset 'hd_scope' but is missing from the order" in err
+    scene_dict["effects"]["order"] = ["bloom", "tonemap", "chromatic_aberration", "laparoscope_mask"]
+    plan = make_plan(load_scene(write_scene(scene_dict)))
+    # the plan lists the post-effects in the order they run (the scene's, not the default)
+    assert [n for n in plan.names if n.startswith("postfx.")] == ["postfx.bloom", "postfx.tonemap",
+                                                                   "postfx.chromatic_aberration", "postfx.laparoscope_mask"]
+    # "not listed" now means just that: no table and no preset entry
+    assert {s.name for s in plan.skipped if s.reason == "not listed in effects"} == {
+        "postfx.depth_of_field", "postfx.lens_flare", "postfx.blur", "postfx.sensor_noise", "postfx.color_grade",
+        "postfx.sharpen"}
 
 
 def test_static_scene_plans_no_simulation(scene_dict, write_scene):

@@ -112,10 +112,9 @@ def make_plan(scene: Scene) -> Plan:
     decide("mucus_reflection", eff.mucus_reflection, "effects.mucus_reflection (SH environment term)",
            "effects.mucus_reflection = false")
     decide("shade", True, f"area light, {scene.light.samples} samples ({scene.light.sampling})", "")
-    chain = scene.effect_chain()
-    for name in postfx.EFFECTS:
-        listed = any(n == name for n, _ in chain)
-        decide(f"postfx.{name}", listed, f"effects.{name} ({eff.backend} backend)", "not listed in effects")
+    listed = [n for n, _ in scene.effect_chain()]  # in the order they run
+    for name in listed + [n for n in postfx.EFFECTS if n not in listed]:
+        decide(f"postfx.{name}", name in listed, f"effects.{name} ({eff.backend} backend)", "not listed in effects")
     decide("write_png", "png" in scene.output.formats, "output.formats lists png", "png not requested")
     decide("write_hdr", "hdr_npy" in scene.output.formats, "output.formats lists hdr_npy", "hdr_npy not requested")
     return Plan(stages=tuple(run), skipped=tuple(skip))
