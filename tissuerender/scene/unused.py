@@ -70,6 +70,12 @@ def _simulation(scene):
             if name in given:
                 return f"simulation.{name}", ("has no effect with integrator = \"none\" (nothing is simulated); "
                                               "choose an integrator or remove it")
+        for i, obj in enumerate(scene.objects):
+            # `fixed` is accepted: it holds nodes at rest, as every node already is without a simulation
+            for name in ("prescribed", "tractions", "paint", "override"):
+                if getattr(obj, name):
+                    return f"objects[{i}].{name}", ("acts on the simulation, and simulation.integrator = \"none\": it "
+                                                    "has no effect; choose an integrator or remove it")
         return None
     for name in sorted(tables - {sim.integrator}):
         if name in given:
@@ -83,6 +89,11 @@ def _simulation(scene):
     table = getattr(sim, sim.integrator)
     table_given = _set(table)
     if sim.integrator == "xpbd":
+        for name in ("solver", "coupled"):
+            if name in table_given and table.material == "model":
+                return f"simulation.xpbd.{name}", ("material = \"model\" projects one energy constraint per tet by "
+                                                   "coloured Gauss-Seidel sweeps: it has no solver choice or constraint "
+                                                   "coupling; remove it")
         if "relaxation" in table_given and table.solver != "jacobi":
             return "simulation.xpbd.relaxation", "only the Jacobi solver relaxes its steps: set solver = \"jacobi\" or remove it"
         green = {"green_stretch_min", "green_stretch_max", "shear_max", "strain_hold"} & table_given
