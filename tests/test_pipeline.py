@@ -130,6 +130,7 @@ def test_integrator_choice_renders_or_exits_2_with_the_reason(scene_dict, write_
 
 
 def test_paint_strokes_stiffen_the_model_and_bad_ones_exit_2(scene_dict, write_scene, tmp_path, capsys):
+    scene_dict["simulation"] = {"integrator": "xpbd"}  # paint acts on the simulation only
     scene_dict["objects"][0]["paint"] = [{"centre": [0.0, 0.0, 0.0], "radius": 0.05, "amount": 3.0}]
     scene = load_scene(write_scene(scene_dict))
     body = build_body(scene.objects[0], 0, scene)
