@@ -207,6 +207,8 @@ UNUSED = [
     (lambda d, t: _simulated(d, integrator="reference", substeps=2), "simulation.substeps", "reference"),
     (lambda d, t: _simulated(d, xpbd={"relaxation": 0.5}), "simulation.xpbd.relaxation", "Jacobi"),
     (lambda d, t: _simulated(d, xpbd={"limit_compliance": 1e-6}), "simulation.xpbd.limit_compliance", "Green-strain"),
+    (lambda d, t: _simulated(d, xpbd={"limit_axes": [1], "shear_max": 0.1}), "simulation.xpbd.limit_axes",
+     "green_stretch_min / green_stretch_max"),
     (lambda d, t: _simulated(d, integrator="cnn", cnn={"energy_rho": 2.0}), "simulation.cnn.energy_rho",
      "force_model = \"energy\""),
     (lambda d, t: _simulated(d, xpbd={"material": "model", "coupled": False}), "simulation.xpbd.coupled",

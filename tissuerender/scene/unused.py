@@ -97,10 +97,13 @@ def _simulation(scene):
         if "relaxation" in table_given and table.solver != "jacobi":
             return "simulation.xpbd.relaxation", "only the Jacobi solver relaxes its steps: set solver = \"jacobi\" or remove it"
         green = {"green_stretch_min", "green_stretch_max", "shear_max", "strain_hold"} & table_given
-        for name in ("limit_frame", "limit_axes", "limit_compliance"):
+        for name in ("limit_frame", "limit_compliance"):
             if name in table_given and not green:
                 return f"simulation.xpbd.{name}", ("shapes the Green-strain limits, but none is set (green_stretch_min, "
                                                    "green_stretch_max, shear_max or strain_hold); remove it")
+        if "limit_axes" in table_given and not green & {"green_stretch_min", "green_stretch_max"}:
+            return "simulation.xpbd.limit_axes", ("chooses the axes of green_stretch_min / green_stretch_max, and neither "
+                                                  "is set; remove it")
     if sim.integrator == "cnn" and table.force_model != "energy":
         for name in ("energy_rho", "energy_gradient"):
             if name in table_given:
