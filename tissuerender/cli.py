@@ -1,12 +1,15 @@
 """``tissuerender`` command line: a thin layer over the Python API.
 
 Exit status: 0 success, 1 a failed check (golden), 2 a user error (bad scene, missing file, bad option;
-one line on stderr, never a traceback), 130 interrupted (finished frames are kept; rerun with --resume).
+one line on stderr, never a traceback), 130 interrupted by Ctrl-C (SIGINT), 143 terminated (SIGTERM); after
+either, finished frames are kept: rerun with --resume.
 """
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 
 from sim.errors import MeshError
 from tissuerender import golden, load_scene, lookdev, make_plan, render
@@ -21,6 +24,10 @@ def _cmd_render(args) -> int:
         print(f"wrote {len(result.written)} file(s) to {result.out_dir}"
               + (f", kept {len(result.skipped)} finished frame(s)" if result.skipped else "")
               + f"; manifest: {result.out_dir / 'manifest.json'}")
+    if result.stale:
+        print(f"note: {result.out_dir} also holds {len(result.stale)} frame file(s) this render did not write "
+              f"({result.stale[0].name}, …), left from an earlier render; manifest.json lists this render's frames",
+              file=sys.stderr)
     return 0
 
 
@@ -61,22 +68,37 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a job scheduler's time limit): stops a command exactly as Ctrl-C does, so the
+    atomic writers remove their temporaries and the finished frames stay."""
+
+
+def _terminate(signum, frame):
+    raise Terminated
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "frames", None) is not None and args.frames < 1:
         parser.error(f"--frames: expected a positive number, found {args.frames}")
+    in_main_thread = threading.current_thread() is threading.main_thread()  # signal.signal works only there
+    previous = signal.signal(signal.SIGTERM, _terminate) if in_main_thread else None
     try:
         return int(args.func(args) or 0)
     except (UserError, MeshError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
+        how = "terminated" if isinstance(e, Terminated) else "interrupted"
         if args.command == "render":
-            print("interrupted: finished frames are kept; rerun with --resume to continue", file=sys.stderr)
+            print(f"{how}: finished frames are kept; rerun with --resume to continue", file=sys.stderr)
         else:
-            print(f"interrupted: {args.command} wrote nothing further", file=sys.stderr)
-        return 130
+            print(f"{how}: {args.command} wrote nothing further", file=sys.stderr)
+        return 143 if isinstance(e, Terminated) else 130
+    finally:
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 if __name__ == "__main__":

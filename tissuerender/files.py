@@ -1,10 +1,15 @@
 """Output files written atomically: a temporary file in the target's folder, then ``os.replace`` onto the
 target, so a reader (or a render interrupted mid-write) never sees a partial file.
+
+A temporary is named ``.<stem>.<8 random characters>.tmp<suffix>`` (hidden, never an output's name). An
+exception (Ctrl-C, SIGTERM) removes it; a process killed outright (SIGKILL, power loss) can leave one
+behind, which the next render into the folder removes (``remove_temporaries``).
 """
 from __future__ import annotations
 
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -27,6 +32,19 @@ def output_folder(path) -> Path:
     if not os.access(path, os.W_OK | os.X_OK):
         raise UserError(f"{path}: the output folder is not writable")
     return path
+
+
+# ``write_atomic``'s temporary names: mkstemp's 8 random characters are [a-z0-9_]
+TEMPORARY_NAME = re.compile(r"^\..+\.[a-z0-9_]{8}\.tmp(\.[^.]+)?$")
+
+
+def remove_temporaries(folder: Path) -> list[Path]:
+    """Delete the temporaries a killed writer left in ``folder``; returns them. Only one render may write
+    into a folder at a time (another one's temporaries would go too)."""
+    stale = sorted(p for p in Path(folder).iterdir() if TEMPORARY_NAME.match(p.name) and p.is_file())
+    for path in stale:
+        path.unlink(missing_ok=True)
+    return stale
 
 
 def write_atomic(path: Path, write) -> None:

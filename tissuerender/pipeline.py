@@ -3,14 +3,15 @@
 Each stage runs only when the plan lists it (``tissuerender.plan``) and is timed by the
 :class:`~tissuerender.stages.StageRecorder`; ``out/manifest.json`` records both. Frames are written
 atomically (``tissuerender.files``), so an interrupted render never leaves a half-written frame, and
-``resume=True`` skips the frames already on disk (the simulation still advances through them, so the
-remaining frames are identical to an uninterrupted run).
+``resume=True`` skips the frames the manifest records as finished (the simulation still advances through
+them, so the remaining frames are identical to an uninterrupted run).
 """
 from __future__ import annotations
 
 import hashlib
+import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -19,8 +20,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 import postfx
 from sim.output import write_vtu
 from tissuerender.errors import UserError
-from tissuerender.files import output_folder, write_atomic, write_json, write_npy, write_png
-from tissuerender.manifest import manifest
+from tissuerender.files import output_folder, remove_temporaries, write_atomic, write_json, write_npy, write_png
+from tissuerender.manifest import manifest, read_resumable
 from tissuerender.plan import Plan, make_plan
 from tissuerender.renderer import render_frame
 from tissuerender.render_inputs import camera_for, light_for, render_objects, settings_for
@@ -76,27 +77,52 @@ class RunResult:
     plan: Plan
     recorder: StageRecorder
     manifest: dict
+    stale: list[Path] = field(default_factory=list)  # output-like files in the folder that are not this render's
+
+
+# Every name a frame output can have (``frame_name`` and ``_frame_files``), whichever scene wrote it.
+OUTPUT_NAME = re.compile(r"^frame_\d{4,}\.(png|npy)$|^.+_\d{4,}\.vtu$")
 
 
 def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, frames: int | None = None) -> RunResult:
-    """Render the scene's image sequence into ``out_dir`` (frames, optional HDR/VTU, manifest.json)."""
+    """Render the scene's image sequence into ``out_dir`` (frames, optional HDR/VTU, manifest.json).
+
+    ``frames`` renders only the first N of the scene's frames. ``resume`` keeps the frames that
+    ``manifest.json`` records as finished by a render of the same scene file (same sha256, frame count and
+    formats; anything else is a :class:`UserError`) whose files all still exist; the rest are rendered.
+    Without ``resume`` the folder starts over: the manifest records no frame until this run writes it.
+    See docs/design.md, "Resume and interruption".
+    """
     start = time.perf_counter()
     out = output_folder(out_dir)
     plan = make_plan(scene)
+    formats = output_formats(plan)
+    recorded = _resumable(out, scene, formats) if resume else set()
+    remove_temporaries(out)
     recorder = StageRecorder()
     world = build_world(scene, plan, recorder)
     n_frames = scene.output.frames if frames is None else min(frames, scene.output.frames)
+    done = {k for k in recorded if all(p.exists() for p in _frame_files(out, k, plan, world))}
     written, skipped = [], []
     previous = None
     backend_used = None
+
+    def record(extra: dict) -> dict:
+        data = manifest(scene, plan, recorder, formats, n_frames, done, time.perf_counter() - start,
+                        {"postfx_backend": backend_used, **extra})
+        write_json(out / "manifest.json", data)
+        return data
+
+    record({"complete": False})  # from here on the folder's manifest names this scene
     bar = _progress(progress, n_frames, scene.name)
     try:
         for k in range(1, n_frames + 1):
             if k > 1 and "simulate" in plan:
                 advance(world, scene, recorder)
-            wanted = _frame_files(out, k, plan)
-            if resume and wanted and all(p.exists() for p in wanted):
+            if k in done:
                 skipped.append(out / frame_name(k))
+                if "velocity_channel" in plan:
+                    previous = _surface_positions(world, plan)
                 bar.advance()
                 continue
             t = (k - 1) / scene.output.fps
@@ -104,28 +130,57 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
             result, previous = render_hdr(world, scene, plan, recorder, t, seed, previous=previous)
             image, backend_used = postprocess(scene, result.hdr, result.depth, recorder, seed)
             written += _write_frame(out, k, plan, recorder, world, image, result.hdr)
-            write_json(out / "manifest.json", manifest(scene, plan, recorder, k, time.perf_counter() - start,
-                                                       {"postfx_backend": backend_used, "complete": False}))
+            done.add(k)
+            record({"complete": False})
             bar.advance()
     finally:
         bar.close()
-    final = manifest(scene, plan, recorder, n_frames, time.perf_counter() - start,
-                     {"postfx_backend": backend_used, "complete": True,
-                      "written": [p.name for p in written], "resumed_skipped": [p.name for p in skipped]})
-    write_json(out / "manifest.json", final)
-    return RunResult(out, written, skipped, plan, recorder, final)
+    final = record({"complete": True, "written": [p.name for p in written],
+                    "resumed_skipped": [p.name for p in skipped]})
+    ours = {p.name for k in done for p in _frame_files(out, k, plan, world)}
+    stale = sorted(p for p in out.iterdir() if OUTPUT_NAME.match(p.name) and p.name not in ours)
+    return RunResult(out, written, skipped, plan, recorder, final, stale)
 
 
-def _frame_files(out: Path, k: int, plan: Plan) -> list[Path]:
-    """The image files frame ``k`` writes; ``resume`` keeps a frame when all of them exist."""
+def output_formats(plan: Plan) -> list[str]:
+    """The ``output.formats`` names this render writes (as the plan decided: vtu only when simulating)."""
+    return [name for name, stage in (("png", "write_png"), ("hdr_npy", "write_hdr"), ("vtu", "write_vtu"))
+            if stage in plan]
+
+
+def _resumable(out: Path, scene: Scene, formats: list[str]) -> set[int]:
+    """The frames ``out``'s manifest records as finished, after checking they come from this scene; a
+    folder with frame files but no manifest is refused, since nothing says which scene they show."""
+    recorded = read_resumable(out / "manifest.json", scene, formats)
+    if recorded is not None:
+        return recorded
+    outputs = sorted(p.name for p in out.iterdir() if OUTPUT_NAME.match(p.name))
+    if outputs:
+        raise UserError(f"{out}: --resume: the folder holds frame files ({outputs[0]}, {len(outputs)} in all) "
+                        "but no manifest.json, so nothing says which scene they show; render without --resume "
+                        "to overwrite them, or into another folder")
+    return set()
+
+
+def _frame_files(out: Path, k: int, plan: Plan, world: World) -> list[Path]:
+    """Every file frame ``k`` writes (PNG, HDR, one .vtu per body); ``resume`` keeps a frame only when the
+    manifest records it finished and all of them exist."""
     wanted = [out / frame_name(k)] if "write_png" in plan else []
     wanted += [out / frame_name(k, "npy")] if "write_hdr" in plan else []
+    wanted += [out / f"{body.spec.name}_{k:04d}.vtu" for body in world.bodies] if "write_vtu" in plan else []
     return wanted
+
+
+def _surface_positions(world: World, plan: Plan) -> dict[str, np.ndarray]:
+    """The bodies' render-surface positions as ``render_objects`` computes them: a skipped frame's
+    ``previous``, so the next frame's velocity channel matches an uninterrupted run."""
+    return {body.spec.name: body.surface_points(state.x) if "embed" in plan else body.surface.points
+            for body, state in zip(world.bodies, world.states)}
 
 
 def _write_frame(out: Path, k: int, plan: Plan, recorder: StageRecorder, world: World, image: np.ndarray,
                  hdr: np.ndarray) -> list[Path]:
-    """Write frame ``k``'s planned outputs (display PNG, linear HDR, one .vtu per body); returns the images."""
+    """Write frame ``k``'s planned outputs (display PNG, linear HDR, one .vtu per body); returns their paths."""
     written = []
     if "write_png" in plan:
         with recorder.run("write_png"):
@@ -138,7 +193,9 @@ def _write_frame(out: Path, k: int, plan: Plan, recorder: StageRecorder, world: 
     if "write_vtu" in plan:
         with recorder.run("write_vtu"):
             for body, state in zip(world.bodies, world.states):
-                write_atomic(out / f"{body.spec.name}_{k:04d}.vtu", lambda tmp: write_vtu(tmp, body.model, state))
+                path = out / f"{body.spec.name}_{k:04d}.vtu"
+                write_atomic(path, lambda tmp: write_vtu(tmp, body.model, state))
+                written.append(path)
     return written
 
 
