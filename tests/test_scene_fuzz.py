@@ -169,7 +169,7 @@ ADDITIONS = [
                                                                     {"t": 0.1, "position": [0.0, 0.0, 0.0]}]}),
 ]
 NONFINITE = [float("nan"), float("inf"), float("-inf"), "nan", "inf", "-inf", "NaN"]
-EXTREMES = [0, -1, -1.0, 1e30, -1e30, 2**62, 1e-300, 1e300]
+EXTREMES = [0, -1, -1.0, 1e-9, 1e6, 1e30, -1e30, 2**62, 1e-300, 1e300]
 RETYPES = ["x", "70", 0, -1, 1.5, True, False, [], {}, [1, 2], {"a": 1}, "", [[0.0]]]
 
 
