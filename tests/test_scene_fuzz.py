@@ -1,5 +1,6 @@
-"""Property test: random mutations of valid scenes either load or are rejected with exit status 2 and a
-one-line message — never a traceback, never a hang."""
+"""Property tests: random mutations of valid scenes either load or are rejected by ``validate`` with exit
+status 2 and a one-line message, and (a seeded, fixed set of mutants) either render or are rejected by
+``render`` the same way — never a traceback, never a hang. docs/bad-inputs.md lists the hand-written cases."""
 from __future__ import annotations
 
 import copy
