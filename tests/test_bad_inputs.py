@@ -4,7 +4,8 @@ and compares the exit status and the message with the table, so the table always
 Each row's command runs in-process (``tissuerender.cli.main``) against a copy of ``tests/bad_inputs/`` (plus
 the binary files ``binary_files`` writes), whose path the table shows as ``{tmp}``. The message column is
 the line that says what went wrong: the only line of a tissuerender error, argparse's last line (it prints
-its usage first), a traceback's last line, or, for a command that succeeds, the last line it prints.
+its usage first), a traceback's last line (compared on its exception type only), or, for a command that
+succeeds, the last line it prints.
 
 A second test holds every row to the standard (exit status 2, one line naming the file or argument at
 fault, no traceback): a row whose notes begin with ``bug`` is expected to fail it (xfail, strict, so the
@@ -171,12 +172,23 @@ def outcomes(tmp_path_factory):
     return text, fresh, results
 
 
+def _agrees(row: Row, outcome: Outcome) -> bool:
+    """The row shows this outcome. For a traceback (a bug row) only the exception's type is compared: its
+    text can depend on the CPU and the linear-algebra library (``LinAlgError: Eigenvalues did not converge``)."""
+    if row.exit != str(outcome.status):
+        return False
+    if outcome.traceback:
+        return row.message.split(":")[0] == outcome.message.split(":")[0]
+    return row.message == outcome.message
+
+
 def test_table_matches_what_the_cli_prints(outcomes):
-    text, fresh, _ = outcomes
+    _, fresh, results = outcomes
     if UPDATE:
         return
-    differ = [f"  table: {old.rstrip()}\n  cli:   {new.rstrip()}"
-              for old, new in zip(text.splitlines(), fresh.splitlines()) if old != new]
+    now = {row.command: row for row in read_table(fresh)[1]}
+    differ = [f"  table: {format_row(row).rstrip()}\n  cli:   {format_row(now[row.command]).rstrip()}"
+              for row in ROWS if not _agrees(row, results[row.command])]
     assert not differ, ("docs/bad-inputs.md differs from the CLI's output (rewrite it with "
                         "`python -m tests.test_bad_inputs --write` if the change is intended):\n" + "\n".join(differ))
 
