@@ -144,7 +144,7 @@ class ObjectSpec(Strict):
 
 class Simulation(Strict):
     integrator: Literal[INTEGRATORS] = "none"  # type: ignore[valid-type]
-    dt: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0 / 60.0
+    dt: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0 / 72.0  # divides the default frame interval 1/24 s (3 steps)
     substeps: Annotated[int, Field(ge=1, le=1000)] = 10
     iterations: Annotated[int, Field(ge=1, le=10000)] = 10
     gravity: Vec3 = [0.0, 0.0, -9.81]
