@@ -11,11 +11,12 @@ Models (``MODEL_CODES``):
 - ``stable_neo_hookean`` — Macklin & Müller (2021), the form XPBD uses:
   ``Psi = mu/2 (I_C - 3) + lam/2 (J - gamma)^2 - lam/2 (1 - gamma)^2`` with ``gamma = 1 + mu/lam`` so
   the rest state is stress free (the last constant makes Psi(I) = 0); ``P = mu F + lam (J - gamma)
-  cof F``. Defined and smooth for inverted F. Evaluated without gamma: ``lam/2 ((J - gamma)^2 - (1 - gamma)^2)
-  = lam/2 (J - 1)^2 - mu (J - 1)`` and ``lam (J - gamma) = lam (J - 1) - mu`` (exact algebra), so lam = 0
-  gives finite values (the limit) instead of 0 * inf. Its small-strain limit is linear elasticity with Lamé
-  parameters ``(lam - mu, mu)``: the bulk modulus ``lam - mu/3`` is positive only for nu > 1/8, below which
-  the rest state is a saddle and a body collapses (:func:`require_stable_rest`).
+  cof F``. Defined and smooth for inverted F. At lam = 0 (nu = 0) it takes the limit instead of 0 * inf:
+  ``lam/2 ((J - gamma)^2 - (1 - gamma)^2) = lam/2 (J - 1)^2 - mu (J - 1) -> -mu (J - 1)`` and
+  ``lam (J - gamma) = lam (J - 1) - mu -> -mu`` (exact algebra); for lam > 0 the published form, unchanged.
+  Its small-strain limit is linear elasticity with Lamé parameters ``(lam - mu, mu)``: the bulk modulus
+  ``lam - mu/3`` is positive only for nu > 1/8, below which the rest state is a saddle and a body collapses
+  (:func:`require_stable_rest`).
 - ``valanis_landel`` — curve-defined energies of the principal stretches (Qian 4.15–4.20,
   ``sim.constitutive.valanis_landel``; the curves come as ``vl=``, from ``model.material_params``).
 - ``anisotropic_neo_hookean`` — ``neo_hookean`` plus a fibre term (Zhang eq. 5.37, with 5.38 corrected: docs/design.md,
@@ -57,7 +58,10 @@ def energy_density(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = 
         E = 0.5 * (C - np.eye(3))
         return mu * np.einsum("mij,mij->m", E, E) + 0.5 * lam * np.einsum("mii->m", E) ** 2
     if name == "stable_neo_hookean":
-        return 0.5 * mu * (I1 - 3.0) + 0.5 * lam * (J - 1.0) ** 2 - mu * (J - 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gamma = 1.0 + mu / lam
+            psi = 0.5 * mu * (I1 - 3.0) + 0.5 * lam * (J - gamma) ** 2 - 0.5 * lam * (1.0 - gamma) ** 2
+        return np.where(lam > 0.0, psi, 0.5 * mu * (I1 - 3.0) - mu * (J - 1.0))  # the lam -> 0 limit
     if name in SPLIT_MODELS:
         with np.errstate(invalid="ignore", divide="ignore"):
             Jm23 = J ** (-2.0 / 3.0)
@@ -119,7 +123,10 @@ def first_piola(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = Tru
     cof = cofactor(F)
     J = det(F)
     if name == "stable_neo_hookean":
-        return mu[m] * F + (lam * (J - 1.0) - mu)[m] * cof  # lam (J - gamma), gamma = 1 + mu / lam
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gamma = 1.0 + mu / lam
+            s = np.where(lam > 0.0, lam * (J - gamma), -mu)  # lam (J - 1) - mu -> -mu as lam -> 0
+        return mu[m] * F + s[m] * cof
     if name in SPLIT_MODELS:
         FinvT = cof / J[m]
         Jm23 = J ** (-2.0 / 3.0)
