@@ -29,6 +29,7 @@ class World:
     surfaces: list[StaticSurface]
     integrators: list = field(default_factory=list)
     states: list = field(default_factory=list)
+    frames_advanced: int = 0  # frame intervals simulated so far: the states are at time frames_advanced / fps
 
 
 def build_world(scene: Scene, plan: Plan, recorder: StageRecorder) -> World:
@@ -64,19 +65,34 @@ def make_probe(tool) -> Probe:
 
 
 def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
-    """Advance every body by one frame interval (``steps_per_frame`` steps of ``simulation.dt``)."""
+    """Advance every body by one frame interval, from ``f / fps`` to ``(f + 1) / fps`` (f = frames advanced so far):
+    ``steps_per_frame`` steps of ``simulation.dt``, which divides the interval (``load_scene`` checks it). Each step
+    starts at its own time ``f / fps + j dt``, computed rather than summed, and the interval ends on ``(f + 1) / fps``
+    bitwise, the time the renderer draws the tools at (frame k shows ``(k - 1) / fps``), so a probe drawn at the
+    frame time sits where the simulation pushed the tissue with it."""
     dt = scene.simulation.dt
+    fps = scene.output.fps
+    f = world.frames_advanced
+    n = scene.steps_per_frame
     with recorder.run("simulate"):
         for i, integrator in enumerate(world.integrators):
-            for _ in range(scene.steps_per_frame):
+            name = world.bodies[i].spec.name
+            for j in range(n):
+                state = world.states[i]
+                state.t = f / fps + j * dt
                 try:
-                    world.states[i] = integrator.step(world.states[i], dt)
+                    state = integrator.step(state, dt)
                 except SimulationDiverged as e:
                     raise SimulationFailed(
-                        f"{scene.path}: simulation of {world.bodies[i].spec.name!r} with "
-                        f"{scene.simulation.integrator} diverged at t = {world.states[i].t:.4g} s: {e}. "
-                        "Try a smaller simulation.dt or more substeps."
+                        f"{scene.path}: frame {f + 2}, object {name!r}, stage simulate: {scene.simulation.integrator} "
+                        f"diverged at t = {state.t:.4g} s: {e}. Try a smaller simulation.dt or more substeps."
                     ) from None
-                if not np.all(np.isfinite(world.states[i].x)):
-                    raise SimulationFailed(f"{scene.path}: simulation of {world.bodies[i].spec.name!r} "
-                                           f"produced non-finite positions at t = {world.states[i].t:.4g} s")
+                state.t = (f + 1) / fps if j == n - 1 else f / fps + (j + 1) * dt
+                world.states[i] = state
+                bad = ~np.isfinite(state.x).all(axis=1)
+                if bad.any():
+                    raise SimulationFailed(
+                        f"{scene.path}: frame {f + 2}, object {name!r}, stage simulate: {scene.simulation.integrator} "
+                        f"produced non-finite positions at {int(bad.sum())} of {bad.size} nodes (first: node "
+                        f"{int(np.flatnonzero(bad)[0])}) at t = {state.t:.4g} s. Try a smaller simulation.dt or more substeps.")
+    world.frames_advanced = f + 1

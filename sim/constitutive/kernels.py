@@ -12,7 +12,7 @@ Materials (``MATERIALS``; the same formulas as ``sim.constitutive.models``, whic
 - ``neo_hookean`` — Zhang eq. 5.35: ``Psi = mu/2 (J^(-2/3) I1 - 3) + kappa/2 (J - 1)^2``,
   ``P = mu J^(-2/3) (F - I1/3 F^-T) + kappa (J - 1) cof F`` with ``kappa = lam + 2 mu / 3``;
 - ``stable_neo_hookean`` — Macklin & Müller (2021): ``P = mu F + lam (J - gamma) cof F``,
-  ``gamma = 1 + mu / lam``;
+  ``gamma = 1 + mu / lam``; at lam = 0 (nu = 0) the limit ``lam (J - gamma) = lam (J - 1) - mu -> -mu``;
 - ``anisotropic_neo_hookean`` — ``neo_hookean`` plus the fibre term of Zhang 5.37 with the corrected 5.38
   (docs/design.md, "Zhang 5.37/5.38: fibre stress"): ``Psi_f = eta/2 (I4bar - 1)^2``, ``I4bar = J^(-2/3) |F a0|^2``,
   ``P_f = eta (I4bar - 1) J^(-2/3) (2 (F a0) a0^T - 2/3 I4 F^-T)``.
@@ -149,12 +149,13 @@ def energy_piola_root(code, F, mu, lam, eta, ax, ay, az, branch_free):
     if code == STABLE_NEO_HOOKEAN:
         cof = cofactor(F)
         J = f00 * cof[0] + f01 * cof[1] + f02 * cof[2]
-        gamma = 1.0 + mu / lam
         tr, HH, I2, detH = displacement_invariants(F)
         j = tr + I2 + detH
         # mu/2 (I1 - 3) + lam/2 ((J - gamma)^2 - (1 - gamma)^2) = mu/2 (H:H - 2 I2 - 2 det H) + lam/2 j^2
         psi = 0.5 * mu * (HH - 2.0 * I2 - 2.0 * detH) + 0.5 * lam * j * j
-        s = lam * (J - gamma)
+        # lam (J - gamma) with gamma = 1 + mu / lam as published (bit for bit as before for lam > 0), and its limit
+        # lam (J - 1) - mu -> -mu at lam = 0 (nu = 0) instead of 0 * inf
+        s = lam * (J - (1.0 + mu / lam)) if lam > 0.0 else -mu
         return psi, (mu * f00 + s * cof[0], mu * f01 + s * cof[1], mu * f02 + s * cof[2],
                      mu * f10 + s * cof[3], mu * f11 + s * cof[4], mu * f12 + s * cof[5],
                      mu * f20 + s * cof[6], mu * f21 + s * cof[7], mu * f22 + s * cof[8])

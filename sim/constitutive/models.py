@@ -11,7 +11,12 @@ Models (``MODEL_CODES``):
 - ``stable_neo_hookean`` — Macklin & Müller (2021), the form XPBD uses:
   ``Psi = mu/2 (I_C - 3) + lam/2 (J - gamma)^2 - lam/2 (1 - gamma)^2`` with ``gamma = 1 + mu/lam`` so
   the rest state is stress free (the last constant makes Psi(I) = 0); ``P = mu F + lam (J - gamma)
-  cof F``. Defined and smooth for inverted F.
+  cof F``. Defined and smooth for inverted F. At lam = 0 (nu = 0) it takes the limit instead of 0 * inf:
+  ``lam/2 ((J - gamma)^2 - (1 - gamma)^2) = lam/2 (J - 1)^2 - mu (J - 1) -> -mu (J - 1)`` and
+  ``lam (J - gamma) = lam (J - 1) - mu -> -mu`` (exact algebra); for lam > 0 the published form, unchanged.
+  Its small-strain limit is linear elasticity with Lamé parameters ``(lam - mu, mu)``: the bulk modulus
+  ``lam - mu/3`` is positive only for nu > 1/8, below which the rest state is a saddle and a body collapses
+  (:func:`require_stable_rest`).
 - ``valanis_landel`` — curve-defined energies of the principal stretches (Qian 4.15–4.20,
   ``sim.constitutive.valanis_landel``; the curves come as ``vl=``, from ``model.material_params``).
 - ``anisotropic_neo_hookean`` — ``neo_hookean`` plus a fibre term (Zhang eq. 5.37, with 5.38 corrected: docs/design.md,
@@ -53,8 +58,10 @@ def energy_density(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = 
         E = 0.5 * (C - np.eye(3))
         return mu * np.einsum("mij,mij->m", E, E) + 0.5 * lam * np.einsum("mii->m", E) ** 2
     if name == "stable_neo_hookean":
-        gamma = 1.0 + mu / lam
-        return 0.5 * mu * (I1 - 3.0) + 0.5 * lam * (J - gamma) ** 2 - 0.5 * lam * (1.0 - gamma) ** 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gamma = 1.0 + mu / lam
+            psi = 0.5 * mu * (I1 - 3.0) + 0.5 * lam * (J - gamma) ** 2 - 0.5 * lam * (1.0 - gamma) ** 2
+        return np.where(lam > 0.0, psi, 0.5 * mu * (I1 - 3.0) - mu * (J - 1.0))  # the lam -> 0 limit
     if name in SPLIT_MODELS:
         with np.errstate(invalid="ignore", divide="ignore"):
             Jm23 = J ** (-2.0 / 3.0)
@@ -116,8 +123,10 @@ def first_piola(name: str, F, mu, lam, eta=None, a0=None, volumetric: bool = Tru
     cof = cofactor(F)
     J = det(F)
     if name == "stable_neo_hookean":
-        gamma = 1.0 + mu / lam
-        return mu[m] * F + (lam * (J - gamma))[m] * cof
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gamma = 1.0 + mu / lam
+            s = np.where(lam > 0.0, lam * (J - gamma), -mu)  # lam (J - 1) - mu -> -mu as lam -> 0
+        return mu[m] * F + s[m] * cof
     if name in SPLIT_MODELS:
         FinvT = cof / J[m]
         Jm23 = J ** (-2.0 / 3.0)
@@ -156,6 +165,24 @@ def model_params(model):
         eta = np.broadcast_to(np.asarray(model.material_params.get("eta", 2.0 * model.mu), float), model.mu.shape)
         a0 = model.fibre if model.fibre is not None else np.tile([0.0, 0.0, 1.0], (model.n_tets, 1))
     return model.constitutive, model.mu, model.lam, eta, a0
+
+
+# the stable Neo-Hookean rest state is a minimum only where its bulk modulus lam - mu/3 > 0, i.e. nu > 1/8
+STABLE_NEO_HOOKEAN_MIN_NU = 0.125
+
+
+def require_stable_rest(model, law: str = "the stable Neo-Hookean energy") -> None:
+    """Raise ValueError when ``law`` (Macklin & Müller's stable Neo-Hookean with the model's Lamé ``lam``, ``mu``)
+    has no stable rest state in some tet: linearised at F = I it is linear elasticity with Lamé parameters
+    ``(lam - mu, mu)``, whose bulk modulus ``lam - mu/3`` is not positive for nu <= 1/8 (nu = 0 included), and
+    such a body collapses (measured: a 10 cm cube under gravity reaches J = 6e-4 at nu = 0.12, J = 0.90 at 0.15)."""
+    bad = np.flatnonzero(np.asarray(model.nu) <= STABLE_NEO_HOOKEAN_MIN_NU)
+    if bad.size:
+        t = int(bad[0])
+        raise ValueError(
+            f"{law} has a stable rest state only for nu > 1/8 (its small-strain bulk modulus lam - mu/3 must be "
+            f"positive); found nu = {float(model.nu[t]):g} in {bad.size} tet(s) (first: tet {t}); use nu > 0.125 "
+            "or a material with another constitutive model")
 
 
 def uses_anp(model) -> bool:

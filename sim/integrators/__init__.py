@@ -19,6 +19,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from sim.constitutive import models
 from sim.integrators.chainmail import ChainMailSceneSettings, ChainMailSettings
 from sim.integrators.cnn.settings import CNNSceneSettings, CNNSettings
 from sim.integrators.ebm.settings import EBMSceneSettings, EBMSettings
@@ -103,6 +104,9 @@ def supported_by(feature: str) -> list[str]:
 def make_integrator(name: str, model: Model, settings: Settings | Mapping | None = None) -> Integrator:
     """Integrator ``name`` for ``model``; ``settings``: its settings model or a mapping of its keys (validated)."""
     entry = _entry(name)
+    settings = entry.settings.of(settings)
+    if model.constitutive == "stable_neo_hookean" and name != "cnn_chainmail":  # the ChainMail has no energy
+        models.require_stable_rest(model, f"{name}: the stable Neo-Hookean energy")
     module_name, class_name = entry.target.split(":")
     cls = getattr(importlib.import_module(module_name), class_name)
-    return cls(model, entry.settings.of(settings))
+    return cls(model, settings)

@@ -8,6 +8,8 @@ a render hang (tet counts, step counts).
 from __future__ import annotations
 
 import hashlib
+import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -80,6 +82,8 @@ class Scene:
 
     @property
     def steps_per_frame(self) -> int:
+        """Simulation steps per frame interval: ``1 / (fps dt)``, a whole number in a loaded scene (``load_scene``
+        rejects a ``simulation.dt`` that does not divide the frame interval)."""
         return max(1, round(1.0 / (self.output.fps * self.simulation.dt)))
 
     def resolve(self, relative: str) -> Path:
@@ -253,10 +257,19 @@ def _check_references(scene: Scene) -> None:
         raise SceneError(p, "tools", f"expected unique tool names, found {tool_names}")
     sim = scene.simulation
     if sim.integrator != "none":
+        # n steps of dt must end exactly on the frame time (k - 1) / fps, where the renderer draws the tools. Rounding
+        # allowed: dt and 1/fps are each within half an ulp of their decimal values, and the integrators add the n
+        # steps one by one (each addition rounds by half an ulp of a time <= the interval): |n dt - 1/fps| <= 4 n eps / fps
         frame_interval = 1.0 / scene.output.fps
-        if sim.dt > frame_interval * 1.5:
+        ratio = frame_interval / sim.dt
+        n = round(ratio)
+        if n < 1 or abs(n * sim.dt - frame_interval) > 4.0 * n * sys.float_info.epsilon * frame_interval:
+            fps = scene.output.fps
+            options = [f"1/{k * fps:g} = {1.0 / (k * fps)!r}" for k in sorted({max(1, math.floor(ratio)), math.ceil(ratio)})]
             raise SceneError(p, "simulation.dt",
-                             f"expected a step no longer than the frame interval {frame_interval:.4g} s, found {sim.dt}")
+                             f"expected a step that divides the frame interval 1/{fps:g} s = {frame_interval!r} s "
+                             f"(output.fps = {fps:g}) into whole steps, found {sim.dt!r} ({ratio:.4g} steps per frame); "
+                             f"use {' or '.join(options)}")
         total = scene.steps_per_frame * scene.output.frames
         if total > MAX_SIM_STEPS:
             raise SceneError(p, "simulation.dt",

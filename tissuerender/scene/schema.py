@@ -175,7 +175,10 @@ class ObjectSpec(Strict):
 class Simulation(Strict):
     integrator: Literal[INTEGRATORS] = Field("none", description=(  # type: ignore[valid-type]
         "how bodies move; none renders them at rest"))
-    dt: Annotated[float, Field(gt=0.0, le=1.0)] = 1.0 / 60.0
+    dt: Annotated[float, Field(gt=0.0, le=1.0, description=(
+        "simulation step [s]; must divide the frame interval 1/fps (to rounding: abs(n dt - 1/fps) <= 4 n eps / fps), "
+        "else exit 2 naming the two nearest steps that do (e.g. 1/48 or 1/72 at 24 fps); each frame advances "
+        "n = 1/(fps dt) steps and ends exactly on its time (k - 1)/fps; a render may take at most 2,000,000 steps"))] = 1.0 / 72.0
     substeps: Annotated[int, Field(ge=1, le=1000, description=(
         "substeps per step (xpbd, ebm, cnn, cnn_chainmail, explicit)"))] = 10
     iterations: Annotated[int, Field(ge=1, le=10000, description=(

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from sim.constitutive import models
 from sim.errors import SimulationDiverged
 from sim.integrators.xpbd import blocked, kernels
 from sim.integrators.xpbd.colouring import colour_tets, split_into_domains
@@ -49,7 +50,8 @@ class TetConstraints:
         order = xpbd.tet_order
         mu, lam, volume = m.mu[order], m.lam[order], m.volume[order]
         self.alpha_dev = 1.0 / (weight * mu * volume)
-        # lam = 0 (nu = 0): no volume term; an effectively infinite compliance switches it off.
+        # lam = 0 (nu = 0, only with material = "model": the constraints below need nu > 1/8, XPBD.__init__): the
+        # hydrostatic set is unused, kept finite
         has_lam = lam > 0.0
         self.alpha_hyd = np.where(has_lam, 1.0 / (weight * np.where(has_lam, lam, 1.0) * volume), 1e30)
         self.gamma = np.where(has_lam, 1.0 + mu / np.where(has_lam, lam, 1.0), 1.0)
@@ -119,6 +121,8 @@ class XPBD:
             0.0 if smin is None else float(smin), np.inf if smax is None else float(smax))
         self.mode = 1 if coupling == "coupled" else 0
         self.material = settings.material
+        if self.material != "model":
+            models.require_stable_rest(model, 'xpbd\'s stable Neo-Hookean constraints (material = "stable_neo_hookean")')
         self.kernel = settings.kernel
         # material = "model": "numba" (default where the material has one) or "numpy" (sim.integrators.xpbd.energy)
         self.energy_kernel = settings.energy_kernel
