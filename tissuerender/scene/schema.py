@@ -93,7 +93,9 @@ class MaterialOverride(Strict):
     """Replaces values of the preset's mechanics (``materials.mechanics``) for one body."""
 
     E: Annotated[float, Field(gt=0.0, le=1e9)] | None = Field(None, description="Young's modulus [Pa]")
-    nu: Annotated[float, Field(ge=0.0, lt=0.5)] | None = Field(None, description="Poisson ratio [-]")
+    nu: Annotated[float, Field(ge=0.0, lt=0.5)] | None = Field(None, description=(
+        "Poisson ratio [-]; materials simulated with the stable Neo-Hookean law need nu > 1/8 (its bulk modulus "
+        "lambda - mu/3 is not positive below; exit 2 otherwise)"))
     density: Annotated[float, Field(gt=0.0, le=1e5)] | None = Field(None, description="mass density [kg/m^3]")
 
 
