@@ -41,11 +41,9 @@ def test_every_table_a_scene_can_hold_has_a_section():
 
 
 def test_every_key_of_the_scene_and_integrator_tables_has_a_description():
-    # The post-effects' own parameters are documented in docs/postfx.md; simulation.dt's Field is being
-    # reworked with the frame clock (issue 16 item 2) and gets its description with that change.
-    pending = {("Simulation", "dt")}
+    # The post-effects' own parameters are documented in docs/postfx.md.
     missing = [f"{s.name}.{k}" for s in doc_tables.SECTIONS if not s.name.startswith("effects.")
-               for k, f in s.fields().items() if not f.description and (s.model.__name__, k) not in pending]
+               for k, f in s.fields().items() if not f.description]
     assert not missing, f"fields without Field(description=...): {missing}"
 
 
