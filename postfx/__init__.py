@@ -8,10 +8,11 @@ Only the effects listed in the scene's ``[effects]`` table run, in order.
 """
 from __future__ import annotations
 
-from postfx.chain import ChainResult, apply_chain, apply_effect, osmesa_available, to_uint8
+from postfx.chain import ChainResult, apply_chain, apply_effect, osmesa_available, osmesa_problem, to_uint8
 from postfx.effect import EffectParams, Lens
-from postfx.errors import OSMesaUnavailable
+from postfx.errors import NonFiniteOutput, OSMesaUnavailable
 from postfx.registry import CAMERA_PRESETS, DEFAULT_ORDER, EFFECTS, REGISTRY
 
 __all__ = ["CAMERA_PRESETS", "DEFAULT_ORDER", "EFFECTS", "REGISTRY", "ChainResult", "EffectParams", "Lens",
-           "OSMesaUnavailable", "apply_chain", "apply_effect", "osmesa_available", "to_uint8"]
+           "NonFiniteOutput", "OSMesaUnavailable", "apply_chain", "apply_effect", "osmesa_available", "osmesa_problem",
+           "to_uint8"]

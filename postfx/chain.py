@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from postfx.effect import EffectParams, Lens
-from postfx.errors import OSMesaUnavailable
+from postfx.errors import OSMesaUnavailable, check_output
 from postfx.gl import chain as gl_chain
 from postfx.gl.context import Context
 from postfx.pointwise import POINTWISE, pointwise_chain
@@ -53,6 +53,7 @@ def apply_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens: Lens, backend: 
     if used == "osmesa":
         Context.get()  # raises OSMesaUnavailable naming libosmesa6 when it cannot run
         img, groups, total = gl_chain.run_chain(img, depth, chain, lens, seed, clip=True)  # one upload, one read-back
+        check_output(None, img)  # the GL side runs the chain in one go: no effect to name
         seconds, fused = {}, {}
         for key, value in groups.items():
             first, *rest = key.split("+")
@@ -71,6 +72,7 @@ def apply_chain(hdr: np.ndarray, depth: np.ndarray, chain, lens: Lens, backend: 
         else:
             img = apply_effect(name, img, depth, params, lens, seed).astype(np.float32, copy=False)
         seconds[name] = time.perf_counter() - start
+        check_output("+".join(n for n, _ in run), img)  # a fused run of pointwise effects cannot be split
     return ChainResult(np.clip(img, 0.0, 1.0), seconds, used, time.perf_counter() - begin, fused)
 
 
@@ -88,15 +90,23 @@ def _pointwise_runs(chain):
     return runs
 
 
-def osmesa_available() -> bool:
-    """True when the OSMesa backend can run here (libOSMesa loads and a context can be created)."""
+def osmesa_problem() -> str | None:
+    """Why the OSMesa backend cannot run here (libOSMesa missing, VTK without its off-screen window, no
+    context), or None when it can."""
     try:
         Context.get()
-    except OSMesaUnavailable:
-        return False
-    return True
+    except OSMesaUnavailable as e:
+        return str(e)
+    return None
+
+
+def osmesa_available() -> bool:
+    """True when the OSMesa backend can run here (libOSMesa loads and a context can be created)."""
+    return osmesa_problem() is None
 
 
 def to_uint8(image: np.ndarray) -> np.ndarray:
-    """Display values in [0, 1] -> 8-bit (round to nearest)."""
+    """Display values in [0, 1] -> 8-bit (round to nearest). Refuses non-finite values
+    (:class:`~postfx.errors.NonFiniteOutput`): a cast would write NaN as black."""
+    check_output("to_uint8", image)
     return (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)

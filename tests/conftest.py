@@ -1,11 +1,15 @@
-"""Shared fixtures: a minimal valid scene as a dict, and a writer that puts scene dicts on disk."""
+"""Shared fixtures: a minimal valid scene as a dict, and a writer that puts scene dicts on disk; tests marked
+``osmesa`` skip where the OSMesa backend cannot run, except under ``CI=true``, where they fail naming why."""
 from __future__ import annotations
 
 import copy
+import os
 from pathlib import Path
 
 import pytest
 import tomli_w
+
+import postfx.chain
 
 MINIMAL_SCENE = {
     "scene": {"name": "test", "seed": 3},
@@ -34,3 +38,25 @@ def write_scene(tmp_path):
         return path
 
     return write
+
+
+def osmesa_requirement(problem: str | None, environ) -> tuple[str, str] | None:
+    """What a test marked ``osmesa`` does when ``problem`` (``postfx.osmesa_problem()``: None when the
+    backend runs) keeps it from running: ("skip", why) on a developer's machine, ("fail", why) under
+    ``CI=true``, where a skipped backend would pass unseen; None when it can run."""
+    if problem is None:
+        return None
+    if environ.get("CI", "").strip().lower() in ("true", "1", "yes"):
+        return "fail", f"CI=true and the OSMesa backend cannot run: {problem}"
+    return "skip", f"the OSMesa backend cannot run: {problem}"
+
+
+def pytest_runtest_setup(item):
+    if item.get_closest_marker("osmesa") is None:
+        return
+    decision = osmesa_requirement(postfx.chain.osmesa_problem(), os.environ)
+    if decision is not None:
+        action, why = decision
+        if action == "fail":
+            pytest.fail(why, pytrace=False)
+        pytest.skip(why)

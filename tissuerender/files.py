@@ -63,8 +63,17 @@ def write_atomic(path: Path, write) -> None:
         raise
 
 
+def refuse_non_finite(path: Path, array: np.ndarray) -> None:
+    """The writers' last line of defence (``tissuerender.finite`` catches NaN where it arises): no file
+    holding a NaN or inf is ever written."""
+    array = np.asarray(array)
+    if np.issubdtype(array.dtype, np.floating) and not np.isfinite(array).all():
+        raise ValueError(f"{path}: refusing to write {int((~np.isfinite(array)).sum())} non-finite values")
+
+
 def write_png(path: Path, rgb: np.ndarray) -> None:
     """An 8-bit RGB image (H, W, 3) as PNG."""
+    refuse_non_finite(path, rgb)
     write_atomic(path, lambda tmp: Image.fromarray(rgb).save(tmp, format="PNG"))
 
 
@@ -73,6 +82,7 @@ def write_json(path: Path, data: dict) -> None:
 
 
 def write_npy(path: Path, array: np.ndarray) -> None:
+    refuse_non_finite(path, array)
     def write(tmp):
         with open(tmp, "wb") as f:
             np.save(f, array)

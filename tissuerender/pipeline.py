@@ -20,6 +20,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 import postfx
 from sim.output import write_vtu
 from tissuerender.errors import UserError
+from tissuerender.finite import NonFiniteError, frame_at
 from tissuerender.files import output_folder, remove_temporaries, write_atomic, write_json, write_npy, write_png
 from tissuerender.manifest import manifest, read_resumable
 from tissuerender.plan import Plan, make_plan
@@ -43,12 +44,15 @@ def render_hdr(world: World, scene: Scene, plan: Plan, recorder: StageRecorder, 
                               settings_for(scene, seed), recorder=recorder)
     except NotImplementedError as e:
         raise UserError(f"{scene.path}: [effects] asks for something this renderer cannot do: {e}") from None
+    except NonFiniteError as e:
+        raise e.located(scene.path, frame_at(t, scene.output.fps), [o.name for o in objects]) from None
     return result, positions
 
 
 def postprocess(scene: Scene, hdr: np.ndarray, depth: np.ndarray, recorder: StageRecorder, seed: int,
-                width: int | None = None, height: int | None = None):
-    """Post-effects of the scene's chain; returns display-referred float32 RGB in [0, 1]."""
+                width: int | None = None, height: int | None = None, frame: int | None = None):
+    """Post-effects of the scene's chain; returns display-referred float32 RGB in [0, 1] (a user error
+    naming the ``frame`` and the effect where one gives a non-finite value)."""
     chain = scene.effect_chain()
     c = scene.camera
     lens = postfx.Lens(fov_deg=c.fov_deg, width=width or scene.width, height=height or scene.height)
@@ -56,6 +60,10 @@ def postprocess(scene: Scene, hdr: np.ndarray, depth: np.ndarray, recorder: Stag
         out = postfx.apply_chain(hdr, depth, chain, lens, backend=scene.effects.backend, seed=seed)
     except postfx.OSMesaUnavailable as e:
         raise UserError(f"{scene.path}: effects.backend = \"osmesa\": {e}") from None
+    except postfx.NonFiniteOutput as e:
+        stage = f"postfx.{e.effect}" if e.effect else "postfx"
+        raise NonFiniteError(stage, "display values", e.count, e.first, e.value, frame=frame, scene_path=scene.path,
+                             pixels=True) from None
     for name, seconds in out.seconds.items():
         recorder.calls[f"postfx.{name}"] = recorder.calls.get(f"postfx.{name}", 0) + 1
         recorder.seconds[f"postfx.{name}"] = recorder.seconds.get(f"postfx.{name}", 0.0) + seconds
@@ -128,7 +136,7 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
             t = (k - 1) / scene.output.fps
             seed = frame_seed(scene, k)
             result, previous = render_hdr(world, scene, plan, recorder, t, seed, previous=previous)
-            image, backend_used = postprocess(scene, result.hdr, result.depth, recorder, seed)
+            image, backend_used = postprocess(scene, result.hdr, result.depth, recorder, seed, frame=k)
             written += _write_frame(out, k, plan, recorder, world, image, result.hdr)
             done.add(k)
             record({"complete": False})
@@ -218,7 +226,7 @@ def render_frame_arrays(scene: Scene, seed: int | None = None, frame: int = 1,
     w, h = resolution if resolution is not None else (None, None)
     s = frame_seed(scene, frame, seed)
     result, _ = render_hdr(world, scene, plan, recorder, (frame - 1) / scene.output.fps, s, w, h)
-    image, _ = postprocess(scene, result.hdr, result.depth, recorder, s, w, h)
+    image, _ = postprocess(scene, result.hdr, result.depth, recorder, s, w, h, frame)
     return postfx.to_uint8(image), result
 
 

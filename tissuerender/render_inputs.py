@@ -84,19 +84,19 @@ def render_objects(world: World, scene: Scene, t: float, plan: Plan, recorder: S
         positions[body.spec.name] = pts
         objects.append(RenderObject(points=pts, triangles=body.surface.triangles, normals=normals,
                                     uv=body.surface.uv, material=body.spec.material, object_id=oid,
-                                    velocity=velocity, optics=optics_for(body.spec)))
+                                    velocity=velocity, optics=optics_for(body.spec), name=body.spec.name))
         oid += 1
     for s in world.surfaces:
         vel = np.zeros_like(s.surface.points) if "velocity_channel" in plan else None
         objects.append(RenderObject(points=s.surface.points, triangles=s.surface.triangles,
                                     normals=s.surface.normals, uv=s.surface.uv, material=s.spec.material,
-                                    object_id=oid, velocity=vel, optics=optics_for(s.spec)))
+                                    object_id=oid, velocity=vel, optics=optics_for(s.spec), name=s.spec.name))
         oid += 1
     for tool in scene.tools:
         if tool.visible:
             pts, tris, normals = tool_surface(tool, t)
             vel = np.zeros_like(pts) if "velocity_channel" in plan else None
             objects.append(RenderObject(points=pts, triangles=tris, normals=normals, uv=None,
-                                        material="plastic", object_id=oid, velocity=vel))
+                                        material="plastic", object_id=oid, velocity=vel, name=tool.name))
             oid += 1
     return objects, positions

@@ -54,29 +54,16 @@ class Context:
         if not library_available():
             raise OSMesaUnavailable("libOSMesa is not installed; install the Debian package libosmesa6 "
                                     "(apt-get install libosmesa6) or use backend = \"numpy\"")
-        # VTK is imported here, not at the top: it is heavy, and the NumPy backend and the scene schema
-        # import postfx without needing it
-        from vtkmodules.util.numpy_support import numpy_to_vtk
-        from vtkmodules.vtkCommonCore import VTK_FLOAT
-        from vtkmodules.vtkRenderingOpenGL2 import (vtkOpenGLFramebufferObject, vtkOpenGLQuadHelper,
-                                                    vtkOpenGLRenderUtilities, vtkOSOpenGLRenderWindow,
-                                                    vtkTextureObject)
-
-        self._numpy_to_vtk, self._vtk_float, self._texture_object = numpy_to_vtk, VTK_FLOAT, vtkTextureObject
-        self._quad_helper = vtkOpenGLQuadHelper
-        self.window = vtkOSOpenGLRenderWindow()
-        self.window.SetOffScreenRendering(1)
-        self.window.SetSize(16, 16)
-        self.window.Initialize()
-        if self.window.GetGenericContext() is None:
-            raise OSMesaUnavailable("VTK could not create an OSMesa context (check libosmesa6)")
-        self.vertex_shader = vtkOpenGLRenderUtilities.GetFullScreenQuadVertexShader()
-        self.fbo = vtkOpenGLFramebufferObject()
-        self.fbo.SetContext(self.window)
+        try:
+            self._open_window()
+        except (ImportError, OSError) as e:
+            # a VTK without the off-screen window class (the PyPI wheel before 9.4), or a library it or the
+            # GL calls need that does not load: the backend cannot run here, which "auto" falls back from
+            cause = str(e).splitlines()[0] if str(e) else type(e).__name__
+            raise OSMesaUnavailable(f"VTK's off-screen window (vtkOSOpenGLRenderWindow) cannot be created: {cause}; "
+                                    f"install vtk>=9.4 and libosmesa6, or use backend = \"numpy\"") from e
         self.quads = {}
-        # VTK wraps no image-store calls and reads back through a pixel buffer: these calls come straight
-        # from the library VTK uses (its context is current on this thread)
-        calls = GLCalls()
+        calls = self._gl_calls
         self.gl = calls.lib
         self._query_counter, self._query_result, self._gen_queries = calls.query_counter, calls.query_result, calls.gen_queries
         self.queries: list[int] = []
@@ -105,6 +92,32 @@ class Context:
         # when a dict: every draw waits for the passes before it, and for itself, and adds its seconds
         # under "<pass>[+epilogue] <width>x<height>" (a profile for the benchmark; off by default)
         self.profile: dict | None = None
+
+    def _open_window(self) -> None:
+        """VTK's OSMesa window with a current context, the full-screen pass helpers and the GL calls VTK
+        does not wrap; ImportError or OSError where VTK or a library cannot load."""
+        # VTK is imported here, not at the top: it is heavy, and the NumPy backend and the scene schema
+        # import postfx without needing it
+        from vtkmodules.util.numpy_support import numpy_to_vtk
+        from vtkmodules.vtkCommonCore import VTK_FLOAT
+        from vtkmodules.vtkRenderingOpenGL2 import (vtkOpenGLFramebufferObject, vtkOpenGLQuadHelper,
+                                                    vtkOpenGLRenderUtilities, vtkOSOpenGLRenderWindow,
+                                                    vtkTextureObject)
+
+        self._numpy_to_vtk, self._vtk_float, self._texture_object = numpy_to_vtk, VTK_FLOAT, vtkTextureObject
+        self._quad_helper = vtkOpenGLQuadHelper
+        self.window = vtkOSOpenGLRenderWindow()
+        self.window.SetOffScreenRendering(1)
+        self.window.SetSize(16, 16)
+        self.window.Initialize()
+        if self.window.GetGenericContext() is None:
+            raise OSMesaUnavailable("VTK could not create an OSMesa context (check libosmesa6)")
+        self.vertex_shader = vtkOpenGLRenderUtilities.GetFullScreenQuadVertexShader()
+        self.fbo = vtkOpenGLFramebufferObject()
+        self.fbo.SetContext(self.window)
+        # VTK wraps no image-store calls and reads back through a pixel buffer: these calls come straight
+        # from the library VTK uses (its context is current on this thread)
+        self._gl_calls = GLCalls()
 
     # -- textures -------------------------------------------------------------------------------
     def _filtering(self, tex, border=None):

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tissuerender.finite import check_finite, check_image
 from tissuerender.renderer.bsdf import bsdf_for
 from tissuerender.renderer.bsdf.tissue import subsurface_term
 from tissuerender.renderer.camera import Camera
@@ -31,7 +32,7 @@ from tissuerender.stages import StageRecorder, recorder_or_new
 class RenderObject:
     """One triangle mesh to draw: vertex ``points`` (n, 3), ``triangles`` (t, 3), vertex ``normals`` (None:
     computed), ``uv`` (n, 2) for textured materials, the preset name ``material``, per-vertex ``velocity``
-    [m/s] for the motion channel."""
+    [m/s] for the motion channel, the scene's ``name`` for error messages."""
 
     points: np.ndarray
     triangles: np.ndarray
@@ -41,6 +42,7 @@ class RenderObject:
     object_id: int = 0
     velocity: np.ndarray | None = None
     optics: object | None = None  # a materials.optics.OpticalMaterial replacing the preset's (scene overrides)
+    name: str = ""  # the scene's name of the object, for messages
 
 
 @dataclass
@@ -134,11 +136,35 @@ def resolve(radiance, points, raster, camera: Camera, supersampling: int, rec: S
     return hdr, depth
 
 
+def check_objects(objects) -> None:
+    """Every object's vertex positions (and normals, where given) are finite: the raster stage would
+    silently drop or smear a triangle with a NaN corner."""
+    for index, obj in enumerate(objects):
+        check_finite(obj.points, "vertex positions", "raster", lambda i, index=index: index)
+        if obj.normals is not None:
+            check_finite(obj.normals, "vertex normals", "raster", lambda i, index=index: index)
+
+
+def check_points(values, what: str, stage: str, points, supersampling: int, allow_inf: bool = False) -> None:
+    """``values`` per shading point are finite (``allow_inf``: +inf allowed); the error names the pixels and
+    the object (the G-buffer's material id: one per render object) of the first bad one."""
+    ss = int(supersampling)
+    check_finite(values, what, stage, lambda i: points.material[i],
+                 lambda rows: np.stack([points.rows[rows] // ss, points.cols[rows] // ss], axis=1), allow_inf)
+
+
+def object_at(surface, raster, row: int, col: int) -> int | None:
+    """The render object covering raster sample (row, col), None for the background."""
+    tri = raster.tri_id[row, col]
+    return int(surface.tri_material[tri]) if tri >= 0 else None
+
+
 def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSettings,
                  recorder: StageRecorder | None = None) -> FrameResult:
     """Render one frame: linear HDR radiance (H, W, 3) float32, view depth (H, W) (inf = background)."""
     rec = recorder_or_new(recorder)
     fused = check_light(light, settings)
+    check_objects(objects)
     optics = material_optics(objects)
     bsdfs = [bsdf_for(o) for o in optics]
     surface = merge_objects(objects)
@@ -157,10 +183,15 @@ def render_frame(objects, camera: Camera, light: AreaLight, settings: RenderSett
             points.thickness = thickness_map(rays, surface, raster, points, thickness_reach(optics, bsdfs),
                                              settings.sss_thickness == "vertex", scale)
             gbuffer["thickness"] = points.thickness
+            check_points(points.thickness, "thickness", "thickness", points, settings.supersampling, allow_inf=True)
         if not fused:
             points.sss = subsurface_term(optics, points.material, points.thickness, points.albedo)
     with rec.run("shade"):
         radiance = direct_light(points, bsdfs, optics, light, camera, settings, fused, rays, eps, rec, gbuffer)
     environment_light(points, settings, rays, eps, radiance, rec, gbuffer)
+    check_points(radiance, "radiance", "shade", points, settings.supersampling)
     hdr, depth = resolve(radiance, points, raster, camera, settings.supersampling, rec)
+    # finite float64 radiance beyond float32's range would become inf here
+    ss = int(settings.supersampling)
+    check_image(hdr, "radiance", "resolve", lambda row, col: object_at(surface, raster, row * ss, col * ss))
     return FrameResult(hdr=hdr, depth=depth, gbuffer=gbuffer)
