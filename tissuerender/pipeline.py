@@ -19,6 +19,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 import postfx
 from sim.output import write_vtu
+from tissuerender.checks import check_scene
 from tissuerender.errors import UserError
 from tissuerender.finite import NonFiniteError, frame_at
 from tissuerender.files import output_folder, remove_temporaries, write_atomic, write_json, write_npy, write_png
@@ -28,7 +29,7 @@ from tissuerender.renderer import render_frame
 from tissuerender.render_inputs import camera_for, light_for, render_objects, settings_for
 from tissuerender.scene import Scene
 from tissuerender.stages import StageRecorder, recorder_or_new
-from tissuerender.world import World, advance, build_world
+from tissuerender.world import World, advance
 
 
 def frame_name(index: int, ext: str = "png") -> str:
@@ -108,7 +109,7 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
     recorded = _resumable(out, scene, formats) if resume else set()
     remove_temporaries(out)
     recorder = StageRecorder()
-    world = build_world(scene, plan, recorder)
+    world = check_scene(scene, recorder).world  # the checks `validate` runs, and the world they build
     n_frames = scene.output.frames if frames is None else min(frames, scene.output.frames)
     done = {k for k in recorded if all(p.exists() for p in _frame_files(out, k, plan, world))}
     written, skipped = [], []
@@ -217,9 +218,9 @@ def render_frame_arrays(scene: Scene, seed: int | None = None, frame: int = 1,
                         resolution: tuple[int, int] | None = None, recorder: StageRecorder | None = None):
     """One frame: (display uint8 RGB (H, W, 3), the renderer's ``FrameResult``: linear HDR, view depth and
     the G-buffer, as the post-effects receive them)."""
-    plan = make_plan(scene)
     recorder = recorder_or_new(recorder)
-    world = build_world(scene, plan, recorder)
+    checked = check_scene(scene, recorder)
+    plan, world = checked.plan, checked.world
     for _ in range(1, frame):
         if "simulate" in plan:
             advance(world, scene, recorder)
