@@ -11,6 +11,7 @@ import random
 import traceback
 from pathlib import Path
 
+import meshio
 import numpy as np
 import pytest
 import tomli_w
@@ -322,12 +323,17 @@ def render_mutant(index: int, seed: str = FUZZ_SEED) -> tuple[str, dict, list[st
 
 
 def _expected_files(data: dict, out: Path) -> list[Path]:
-    """The image files a successful 2-frame render of ``data`` must have written."""
+    """The files a successful 2-frame render of ``data`` must have written, in the order the render lists
+    them: per frame the PNG, the HDR ``.npy``, then one ``.vtu`` per simulated body."""
     output = data.get("output", {})
     frames = min(output.get("frames", 1), 2)
     formats = output.get("formats", ["png"])
     ext = [e for f, e in (("png", "png"), ("hdr_npy", "npy")) if f in formats]
-    return [out / f"frame_{k:04d}.{e}" for k in range(1, frames + 1) for e in ext]
+    sim = data.get("simulation", {})
+    vtu = sim.get("integrator", "none") != "none" and ("vtu" in formats or sim.get("write_vtu", False))
+    bodies = [o["name"] for o in data["objects"] if o.get("kind", "body") == "body"] if vtu else []
+    return [p for k in range(1, frames + 1)
+            for p in [out / f"frame_{k:04d}.{e}" for e in ext] + [out / f"{b}_{k:04d}.vtu" for b in bodies]]
 
 
 # Mutants that expose a known bug another change fixes; the lead removes an entry once that change is in.
@@ -367,5 +373,8 @@ def test_mutated_scene_renders_or_fails_with_status_2(index, tmp_path, capsys):
             hdr = np.load(path)
             assert hdr.shape == (height, width, 3) and np.isfinite(hdr).all(), \
                 f"{about}\n{path.name}: shape {hdr.shape}, {np.count_nonzero(~np.isfinite(hdr))} non-finite values"
+        elif path.suffix == ".vtu":
+            mesh = meshio.read(path)
+            assert len(mesh.points) > 0 and np.isfinite(mesh.points).all(), f"{about}\n{path.name}: bad points"
         else:
             assert Image.open(path).size == (width, height), f"{about}\n{path.name} has the wrong size"
