@@ -13,11 +13,42 @@ from tissuerender.cli import main
 SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
 
 
+# What each shipped scene file asks for, read from the file (besides raster and shade, which every frame needs):
+# a body meshes; an integrator with a tool, gravity or prescribed motion simulates; a viscoelastic material
+# (colon_mucosa) keeps Prony state; a tool makes contact; shadows / sss need the BVH; postfx are the listed
+# tables plus the preset's (hd_scope: chromatic_aberration, tonemap, laparoscope_mask); formats decide the writers.
+SHIPPED_PLANS = {
+    "colon_mucosa": ["mesh", "simulate", "prony_state", "embed", "bvh", "thickness", "postfx.depth_of_field",
+                     "postfx.chromatic_aberration", "postfx.tonemap", "postfx.laparoscope_mask", "write_png"],
+    "default": ["mesh", "simulate", "contact", "embed", "bvh", "shadow_rays", "thickness",
+                "postfx.chromatic_aberration", "postfx.tonemap", "postfx.laparoscope_mask", "write_png"],
+    "kidney_static": ["mesh", "bvh", "thickness", "postfx.tonemap", "postfx.laparoscope_mask", "write_png"],
+    "liver_probe": ["mesh", "load_surface", "simulate", "contact", "embed", "bvh", "shadow_rays", "thickness",
+                    "postfx.chromatic_aberration", "postfx.tonemap", "postfx.laparoscope_mask", "write_png"],
+    "zhang_cylinder": ["mesh", "simulate", "embed", "write_vtu", "bvh", "shadow_rays", "postfx.tonemap", "write_png"],
+}
+
+
+def test_every_shipped_scene_is_listed():
+    assert sorted(p.stem for p in SCENES) == sorted(SHIPPED_PLANS)
+
+
 @pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
-def test_every_shipped_scene_plans(path, capsys):
+def test_every_shipped_scene_plans_what_its_file_asks_for(path, capsys):
+    """The plan of each shipped scene, in order, and `plan` prints exactly those stages as running and every
+    other known stage as not running (with a reason)."""
     assert main(["plan", str(path)]) == 0
     out = capsys.readouterr().out
-    assert "stages that will run:" in out and "raster" in out and "shade" in out
+    running, _, rest = out.partition("stages that will run:\n")[2].partition("stages that will not run:\n")
+    printed = [line.split()[0] for line in running.splitlines()]
+    expected = SHIPPED_PLANS[path.stem]
+    assert [n for n in printed if n not in ("raster", "shade")] == expected
+    assert printed.index("raster") < printed.index("shade")
+    plan = make_plan(load_scene(path))
+    assert printed == list(plan.names)
+    skipped = [line.split(maxsplit=1) for line in rest.splitlines() if line.strip()]
+    assert {name for name, _ in skipped} == {s.name for s in plan.skipped} and all(len(r) == 2 for r in skipped)
+    assert not set(printed) & {s.name for s in plan.skipped}
 
 
 def test_static_scene_plans_no_simulation(scene_dict, write_scene):
