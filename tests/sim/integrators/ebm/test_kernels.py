@@ -1,5 +1,5 @@
 """The numba kernels (sim.integrators.ebm.kernels, sim.integrators.cnn.kernels) reproduce the NumPy reference paths
-(``kernel = "numpy"``) to 1e-10 for every material: isotropic, fibre, Prony, with fixed and prescribed
+(``kernel = "numpy"``) within bounds from their operation counts for every material: isotropic, fibre, Prony, with fixed and prescribed
 nodes; and the EBM energies are accurate near rest (the reason they are written in H = F - I)."""
 from __future__ import annotations
 
@@ -158,10 +158,18 @@ def _pressed_cube(cells=5):
     return model
 
 
+def _propagation_tol(n_nodes, n_sub):
+    """Modal form: the symmetric eigen-decomposition of the N x N operator (backward error ~ N U), the powers
+    (1 + h lam)^n and V diag V^T (2 N roundings an entry): 3 N U. Sub-step kernel: a node's rate sums <= 30
+    neighbour terms, and a forward-Euler sub-step of the stable diffusion adds it without amplifying: 30 n U.
+    Either path's bound, summed (measured 7.9e-15 modal, 0 sub-steps, against 2.2e-13 at n = 45)."""
+    return (3 * n_nodes + 30 * n_sub) * U
+
+
 @pytest.mark.parametrize("propagation", ["modal", "substeps"])
 def test_cnn_potential_kernels_reproduce_the_euler_substeps(propagation):
     """The closed-form modal propagation and the numba sub-step kernel give the NumPy forward-Euler
-    sub-steps' potential (Zhang 4.12, 4.24) to 1e-10, in the transient and with fixed cells held non-zero."""
+    sub-steps' potential (Zhang 4.12, 4.24) within :func:`_propagation_tol`, in the transient and with fixed cells held non-zero."""
     model = _pressed_cube()
     reference = EnergyPropagation(model, {"kernel": "numpy"})
     fast = EnergyPropagation(model, {})
@@ -171,11 +179,12 @@ def test_cnn_potential_kernels_reproduce_the_euler_substeps(propagation):
     phi0 = rng.normal(size=model.X.shape) * np.abs(reference.steady_potential()).max()
     for dt in (0.01, 0.05, 0.2):
         assert reference.substeps(dt) > 1
+        tol = _propagation_tol(model.n_nodes, reference.substeps(dt))
         expected = reference.evolve(phi0.copy(), dt)
         got = fast.evolve(phi0.copy(), dt)
-        assert _rel(got, expected) < 1e-10
-        # stepping on from its own result (the modal path reuses its modal coordinates)
-        assert _rel(fast.evolve(got, dt), reference.evolve(expected, dt)) < 1e-10
+        assert _rel(got, expected) <= tol
+        # stepping on from its own result (the modal path reuses its modal coordinates): twice the bound
+        assert _rel(fast.evolve(got, dt), reference.evolve(expected, dt)) <= 2 * tol
     assert np.abs(reference.evolve(phi0.copy(), 0.05) - reference.steady_potential()).max() > 0.1 * np.abs(phi0).max()  # a transient
     # fixed cells held at a non-zero potential during the call (the coupling term of the modal form)
     held = np.zeros_like(phi0)
@@ -186,8 +195,8 @@ def test_cnn_potential_kernels_reproduce_the_euler_substeps(propagation):
     for _ in range(n):
         expected = expected + h * reference.rate(expected)
     expected[model.fixed] = 0.0  # evolve() returns the fixed-state cells at phi = 0 (4.26)
-    assert _rel(fast.evolve(held.copy(), 0.05), expected) < 1e-10
-    assert _rel(reference.evolve(held.copy(), 0.05), expected) < 1e-12
+    assert _rel(fast.evolve(held.copy(), 0.05), expected) <= _propagation_tol(model.n_nodes, n)
+    assert _rel(reference.evolve(held.copy(), 0.05), expected) <= 30 * n * U  # the same sub-steps, summed as written
 
 
 @pytest.mark.parametrize("gradient", ["median_dual", "edge"])
