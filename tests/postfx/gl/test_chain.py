@@ -26,7 +26,8 @@ needs_osmesa = pytest.mark.skipif(not library.library_available(),
 H, W = 120, 160
 LENS = postfx.Lens(70.0, W, H)
 # Tolerances. GLSL computes in float32 (unit roundoff u32 = 2^-24 = 6e-8), the NumPy reference in float32 or float64,
-# and the driver may contract a * b + c into an FMA or evaluate exp / pow to a few ulp (the GLSL specification allows that):
+# and the driver may contract a * b + c into an FMA or evaluate exp / pow to a few ulp (the GLSL specification
+# allows that):
 # - one effect, relative to the image's peak: a gather of up to 97 taps (sigma 16) sums 97 terms, each rounded
 #   <= u32, plus ~30 operations for the weight: <= 130 u32 = 7.8e-6 -> 1e-5; pointwise effects (~30 operations):
 #   <= 30 u32 = 1.8e-6 -> 2e-6;
