@@ -171,7 +171,8 @@ def bias_bound(entry: GoldenImage, directory) -> np.ndarray:
     return BIAS_Z * bias_standard_error(other - own)
 
 
-def compare_exact(entry: GoldenImage, stored: np.ndarray, new: np.ndarray, bias_max) -> tuple[bool, dict, str, np.ndarray]:
+def compare_exact(entry: GoldenImage, stored: np.ndarray, new: np.ndarray,
+                  bias_max) -> tuple[bool, dict, str, np.ndarray]:
     """Exact mode's verdict on two LDR images in [0, 1]: FLIP, PSNR and the per-channel bias bound."""
     mean_flip, error_map = flip(stored, new)
     value = psnr(stored, new)

@@ -1,5 +1,6 @@
 """The numba kernels (sim.integrators.ebm.kernels, sim.integrators.cnn.kernels) reproduce the NumPy reference paths
-(``kernel = "numpy"``) within bounds from their operation counts for every material: isotropic, fibre, Prony, with fixed and prescribed
+(``kernel = "numpy"``) within bounds from their operation counts for every material: isotropic, fibre, Prony,
+with fixed and prescribed
 nodes; and the EBM energies are accurate near rest (the reason they are written in H = F - I)."""
 from __future__ import annotations
 
@@ -169,7 +170,8 @@ def _propagation_tol(n_nodes, n_sub):
 @pytest.mark.parametrize("propagation", ["modal", "substeps"])
 def test_cnn_potential_kernels_reproduce_the_euler_substeps(propagation):
     """The closed-form modal propagation and the numba sub-step kernel give the NumPy forward-Euler
-    sub-steps' potential (Zhang 4.12, 4.24) within :func:`_propagation_tol`, in the transient and with fixed cells held non-zero."""
+    sub-steps' potential (Zhang 4.12, 4.24) within :func:`_propagation_tol`, in the transient and with fixed
+    cells held non-zero."""
     model = _pressed_cube()
     reference = EnergyPropagation(model, {"kernel": "numpy"})
     fast = EnergyPropagation(model, {})
