@@ -1,7 +1,6 @@
 """The numba kernels (sim.integrators.ebm.kernels, sim.integrators.cnn.kernels) reproduce the NumPy reference paths
 (``kernel = "numpy"``) within bounds from their operation counts for every material: isotropic, fibre, Prony,
-with fixed and prescribed
-nodes; and the EBM energies are accurate near rest (the reason they are written in H = F - I)."""
+with fixed and prescribed nodes; and the EBM energies are accurate near rest (the reason they are written in H = F - I)."""
 from __future__ import annotations
 
 import numpy as np
