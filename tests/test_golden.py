@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import tomli_w
 
@@ -14,11 +15,68 @@ GOLDEN = Path(__file__).resolve().parent / "golden"
 NAMES = [img.name for img in golden.load_manifest(GOLDEN)[1].image]
 
 
+ENTRIES = {img.name: img for img in golden.load_manifest(GOLDEN)[1].image}
+EXACT = [name for name in NAMES if ENTRIES[name].mode == "exact"]
+
+
 @pytest.mark.parametrize("name", NAMES)
 def test_project_golden_image(golden, name):
     result = golden(GOLDEN, name)
+    bias, bias_max = np.array(result.metrics["bias"]), np.array(result.metrics["bias_max"])
+    assert bias_max.shape == (3,) and np.all(np.abs(bias) <= bias_max)  # the real render has no global bias
     if result.mode == "exact":
-        assert result.metrics["flip"] <= 0.02 and result.metrics["psnr"] >= 35.0
+        assert result.metrics["flip"] <= ENTRIES[name].flip_max and result.metrics["psnr"] >= ENTRIES[name].psnr_min
+
+
+def _scaled(image_u8, factor):
+    """A global brightness change, quantised to 8 bits as a render would be."""
+    return golden._to_float(np.clip(np.rint(image_u8 * factor), 0, 255).astype(np.uint8))
+
+
+@pytest.mark.parametrize("factor", [1.02, 0.975, 1.03])
+@pytest.mark.parametrize("name", EXACT)
+def test_a_few_percent_global_brightness_change_fails_the_bias_bound(name, factor):
+    """FLIP and PSNR let a global bias of a few percent through on the darker goldens (default at +2.5 %: FLIP
+    0.0196 <= 0.02, PSNR 45 dB); the per-channel bias bound catches it on every golden, while the stored image
+    compared with itself passes."""
+    entry = ENTRIES[name]
+    stored_u8 = golden._read_png(GOLDEN / f"{name}.png")
+    stored = golden._to_float(stored_u8)
+    assert golden.compare_exact(entry, stored, stored, entry.bias_max)[0]
+    ok, metrics, message, _ = golden.compare_exact(entry, stored, _scaled(stored_u8, factor), entry.bias_max)
+    assert not ok and np.all(np.abs(metrics["bias"]) > np.array(entry.bias_max)), message
+    assert np.all(np.sign(metrics["bias"]) == np.sign(factor - 1.0))
+    if name == "default" and factor == 1.02:  # what the per-pixel metrics alone would have passed
+        assert metrics["flip"] <= entry.flip_max and metrics["psnr"] >= entry.psnr_min
+
+
+@pytest.mark.parametrize("factor", [1.02, 0.975])
+def test_statistical_bias_bound_catches_a_few_percent_and_passes_the_stored_noise(factor):
+    """The stored mean against a draw of the same noise (per-pixel normal with the stored variance over n seeds)
+    passes; the stored mean scaled by 2-2.5 % fails on its bias."""
+    entry = ENTRIES["kidney_static_noise"]
+    ref = np.load(GOLDEN / f"{entry.name}.stats.npz")
+    mean, var, n = ref["mean"].astype(np.float64), ref["var"].astype(np.float64), int(ref["n"])
+    draw = mean + np.random.default_rng(1).normal(size=mean.shape) * np.sqrt(np.maximum(var, 1e-8) / n)
+    mean_variance = (var.reshape(-1, 3).sum(axis=0)) / (mean.shape[0] * mean.shape[1]) ** 2  # independent pixels
+    ok, metrics, message, _ = golden.compare_statistical(entry, mean, var, n, draw, var, mean_variance)
+    assert ok, message
+    ok, metrics, message, _ = golden.compare_statistical(entry, mean, var, n, mean * factor, var, mean_variance)
+    assert not ok and np.all(np.abs(metrics["bias"]) > np.array(metrics["bias_max"])), message
+
+
+def test_bias_standard_error_is_the_noise_of_the_image_mean():
+    """Independent pixel noise of standard deviation s: the batch-means standard error of the mean is
+    s / sqrt(N) (within its own sampling error, 1/sqrt(2 (blocks - 1)) = 4 % for 300 blocks); spatially
+    correlated noise (4 x 4 pixel patches) gets the larger error of fewer independent values."""
+    rng = np.random.default_rng(4)
+    s = 0.01
+    white = rng.normal(scale=s, size=(120, 160, 3))
+    assert golden.bias_standard_error(white) == pytest.approx(np.full(3, s / np.sqrt(120 * 160)), rel=0.2)
+    patches = np.repeat(np.repeat(rng.normal(scale=s, size=(30, 40, 3)), 4, axis=0), 4, axis=1)
+    assert golden.bias_standard_error(patches) == pytest.approx(np.full(3, s / np.sqrt(30 * 40)), rel=0.2)
+    floor = golden.bias_standard_error(np.zeros((120, 160, 3)))
+    assert np.allclose(floor, (1 / 255) * np.sqrt(1 / 6 / (120 * 160)), rtol=1e-15)  # n=4 flops, <= 0.5 ulp each
 
 
 def _setup(tmp_path, scene_dict, write_scene, mode):

@@ -6,6 +6,7 @@ import re
 import subprocess
 import sys
 
+import meshio
 import numpy as np
 import pytest
 from PIL import Image
@@ -117,14 +118,24 @@ def test_integrator_choice_renders_or_exits_2_with_the_reason(scene_dict, write_
     # 1/504 s: 21 steps per 1/24 s frame, substeps of 0.99 ms (cnn inverts elements at 1/480 s, 1.04 ms substeps)
     scene_dict["simulation"] = {"integrator": integrator, "dt": 1 / 504, "substeps": 2,
                                 "gravity": [0.0, 0.0, -9.81], integrator: table}
-    scene_dict["output"]["frames"] = 2
+    scene_dict["output"].update(frames=2, formats=["png", "vtu"])
     path = write_scene(scene_dict)
     code = main(["render", str(path), "-o", str(tmp_path / "out"), "--quiet"])
     err = capsys.readouterr().err
     if message is None:
-        assert code == 0 and (tmp_path / "out" / "frame_0002.png").exists()
+        assert code == 0 and (tmp_path / "out" / "frame_0002.png").exists(), err
         manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
-        assert "simulate" in json.dumps(manifest)
+        assert manifest["executed"]["simulate"]["calls"] == 1  # one frame interval between frames 1 and 2
+        # the block, fixed at z_min, sags under gravity: its top goes down, no node falls faster than free
+        # fall over the frame interval (at most 0.042 s: 21 steps of 2 ms; g t^2 / 2 = 8.7 mm), the base stays put
+        rest = meshio.read(tmp_path / "out" / "block_0001.vtu")
+        moved = meshio.read(tmp_path / "out" / "block_0002.vtu")
+        u0, u = rest.point_data["displacement"], moved.point_data["displacement"]
+        z = rest.points[:, 2]
+        assert np.abs(u0).max() == 0.0 and np.all(u[z == z.min()] == 0.0)
+        free_fall = 0.5 * 9.81 * 0.042**2
+        assert -free_fall * (1 + 1e-9) <= u[:, 2].min() and u[z == z.max(), 2].mean() < -1e-3 * free_fall, \
+            (u[:, 2].min(), u[z == z.max(), 2].mean())
     else:
         assert code == 2 and re.search(message, err) and "Traceback" not in err
         assert str(path) in err

@@ -63,6 +63,10 @@ def test_an_order_must_list_every_effect_with_a_table_and_the_plan_follows_it(sc
         "postfx.sharpen"}
 
 
+def test_every_shipped_scene_is_listed():
+    assert sorted(p.stem for p in SCENES) == sorted(SHIPPED_PLANS)
+
+
 def test_static_scene_plans_no_simulation(scene_dict, write_scene):
     plan = make_plan(load_scene(write_scene(scene_dict)))
     assert "simulate" not in plan and "embed" not in plan and "contact" not in plan

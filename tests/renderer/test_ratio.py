@@ -35,7 +35,8 @@ def test_closed_form_matches_the_rectangle_form_factor_and_clips_at_the_horizon(
     h, w, l = 0.1, 0.02, 0.03
     centre, ln = np.array([0.0, 0.0, h]), np.array([0.0, 0.0, -1.0])
     eu, ev = np.array([w / 2, 0.0, 0.0]), np.array([0.0, l / 2, 0.0])
-    # below the centre: four corner rectangles; the cosine integral is pi times the form factor
+    # below the centre: four corner rectangles; the cosine integral is pi times the form factor. Both sides: ~100
+    # float64 operations and 8 arctangents (libm: <= 1 ulp each): (100 + 16) u = 1.3e-14, bound 1e-13
     assert rect_cosine_integral(0, 0, 0, 0, 0, 1.0, centre, ln, eu, ev) == pytest.approx(
         np.pi * 4 * _corner_form_factor(w / 2, l / 2, h), rel=1e-13)
     # tilted normals cut the light with the horizon (one with the light half below it)
@@ -53,7 +54,8 @@ def test_closed_form_matches_the_rectangle_form_factor_and_clips_at_the_horizon(
 @pytest.mark.parametrize("distance", [0.02, 0.3, 3.0, 300.0])
 def test_small_angle_series_agrees_with_the_arctangent(distance):
     """Far from the light each edge subtends a small angle and the edge term uses a series instead of
-    arctan2: both forms agree to round-off at every distance."""
+    arctan2: both forms agree to round-off at every distance: four edge terms of ~30 operations and an arctangent
+    (<= 1 ulp) each, the series truncated below u: (4 x 32) u = 1.4e-14 relative, bound 1e-13."""
     centre, ln = np.zeros(3), np.array([0.0, 0.0, -1.0])
     eu, ev = np.array([0.006, 0.0, 0.0]), np.array([0.0, 0.004, 0.0])
     p = np.array([0.003, -0.002, -distance])

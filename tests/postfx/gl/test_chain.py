@@ -23,6 +23,16 @@ from postfx.tonemap import Tonemap
 # tests marked osmesa skip where the backend cannot run, and fail under CI=true (tests/conftest.py)
 H, W = 120, 160
 LENS = postfx.Lens(70.0, W, H)
+# Tolerances. GLSL computes in float32 (unit roundoff u32 = 2^-24 = 6e-8), the NumPy reference in float32 or float64,
+# and the driver may contract a * b + c into an FMA or evaluate exp / pow to a few ulp (the GLSL specification
+# allows that):
+# - one effect, relative to the image's peak: a gather of up to 97 taps (sigma 16) sums 97 terms, each rounded
+#   <= u32, plus ~30 operations for the weight: <= 130 u32 = 7.8e-6 -> 1e-5; pointwise effects (~30 operations):
+#   <= 30 u32 = 1.8e-6 -> 2e-6;
+# - fused against separate passes: the same operations, intermediates kept in RGBA32F textures (exact), the order
+#   of a few additions changed by the compiler: <= 16 u32 = 1e-6;
+# - a whole chain with its tonemap's exp and pow, after 8-bit quantisation: at most 2 levels (a value within 1e-3
+#   of a rounding boundary may land on either side, and the curve's slope reaches 2 levels per 1e-3 in the toe).
 CASES = {
     "chromatic_aberration": ChromaticAberration(strength_r=0.02, strength_b=-0.015, centre=[0.45, 0.55]),
     "depth_of_field": DepthOfField(focus_distance=0.1, aperture=0.004, max_radius_px=10.0),

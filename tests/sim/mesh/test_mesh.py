@@ -30,8 +30,12 @@ def test_procedural_shapes_have_no_inverted_tets_and_a_closed_outward_surface(na
     _, counts = np.unique(edges, axis=0, return_counts=True)
     assert np.all(counts == 2)  # closed 2-manifold
     p = surf.points[surf.triangles]
-    enclosed = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0  # divergence theorem
-    assert enclosed == pytest.approx(report.total_volume, rel=1e-9)
+    terms = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2]))
+    enclosed = terms.sum() / 6.0  # divergence theorem
+    # signed sums: each side's error <= (count + 10 flops per term) u sum|terms| (Higham 4.2)
+    u = 2.0**-53
+    bound = (terms.size + 10) * u * np.abs(terms).sum() / 6.0 + (mesh.n_tets + 10) * u * report.total_volume
+    assert abs(enclosed - report.total_volume) <= bound
 
 
 def test_beam_sizes_of_the_throughput_benchmark():
@@ -48,15 +52,18 @@ def test_cylinder_and_cube_volumes_within_2_percent():
 def test_quality_of_a_regular_tet():
     pts = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=float)
     r = quality.quality_report(TetMesh(pts, procedural.orient(pts, np.array([[0, 1, 2, 3]]))))
+    # cos from normals (~20 roundings), arccos' slope 1.06 at 1/3, 57.3 deg / rad: 20 u x 61 = 1.4e-13 deg
     assert r.min_dihedral_deg == pytest.approx(np.degrees(np.arccos(1 / 3)), abs=1e-9)
-    assert r.max_dihedral_deg == pytest.approx(70.528779, abs=1e-5)
-    assert r.min_volume_ratio == pytest.approx(1.0, abs=1e-12)
+    assert r.max_dihedral_deg == pytest.approx(70.528779, abs=1e-5)  # the literal's six decimals: 5e-7
+    assert r.min_volume_ratio == pytest.approx(1.0, abs=1e-12)  # a ratio of two equal ~10-flop volumes: 20 u
 
 
 def test_embedding_round_trip_rest_and_affine():
     mesh = procedural.liver(0.15, 0.025)
     fine = surface.subdivide(surface.boundary_surface(mesh), 2)
     emb = embed.embed_points(mesh, fine.points)
+    # barycentric solve (3 x 3, ~30 roundings, times the tets' condition <= ~1e2) and a 4-term reconstruction of
+    # coordinates <= 0.15 m: 34 u x 1e2 x 0.15 = 6e-14 m
     assert np.abs(embed.deform(emb, mesh.tets, mesh.points) - fine.points).max() < 1e-12
     A = np.array([[1.1, 0.2, 0.0], [0.0, 0.9, 0.1], [0.05, 0.0, 1.2]])
     b = np.array([0.3, -0.2, 0.1])

@@ -1,6 +1,6 @@
 """The numba kernels (sim.integrators.ebm.kernels, sim.integrators.cnn.kernels) reproduce the NumPy reference paths
-(``kernel = "numpy"``) to 1e-10 for every material: isotropic, fibre, Prony, with fixed and prescribed
-nodes; and the EBM energies are accurate near rest (the reason they are written in H = F - I)."""
+(``kernel = "numpy"``) within bounds from their operation counts for every material: isotropic, fibre, Prony,
+with fixed and prescribed nodes; and the EBM energies are accurate near rest (the reason they are written in H = F - I)."""
 from __future__ import annotations
 
 import numpy as np
@@ -27,6 +27,17 @@ MATERIALS = [
     ("anisotropic_neo_hookean", "tilted", [(0.3, 0.02), (0.2, 0.5)]),
 ]
 IDS = ["stvk", "neo_hookean", "stable_neo_hookean", "fibre", "neo_hookean_prony", "fibre_prony"]
+
+U = 2.0**-53  # unit roundoff of float64
+# Kernel against kernel (NumPy, scalar numba, blocked): the same formulas, sums in another order. One evaluation
+# (forces, energy, one sweep of a node) sums <= 24 tets' terms of ~150 flops, each rounding <= U: <= 174 U = 1.9e-14
+# of the terms' size (measured 4.8e-15 on the forces).
+ONE_EVALUATION = 174 * U
+# Three steps of 8 sweeps then amplify a difference at the start as they amplify any perturbation of it: measured by
+# perturbing the strained start by 1e-13 of |x| (larger of x and v; a property of the problem, not of the CPU). StVK's
+# stiffening under compression makes it the worst conditioned. Every comparison after sweeps: the product.
+AMPLIFICATION = {"stvk": 1.2e5, "neo_hookean": 3.7e3, "stable_neo_hookean": 5.2e3, "fibre": 4.1e2,
+                 "neo_hookean_prony": 1.6e2, "fibre_prony": 70.0}
 
 
 def _block(constitutive_name, fibre, prony):
@@ -60,8 +71,8 @@ def _rel(a, b):
     return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-300))
 
 
-@pytest.mark.parametrize("name, fibre, prony", MATERIALS, ids=IDS)
-def test_ebm_kernels_reproduce_numpy(name, fibre, prony):
+@pytest.mark.parametrize("name, fibre, prony, material", [(*m, i) for m, i in zip(MATERIALS, IDS)], ids=IDS)
+def test_ebm_kernels_reproduce_numpy(name, fibre, prony, material):
     runs = {}
     for kernel in ("numpy", "numba"):
         model = _block(name, fibre, prony)
@@ -76,14 +87,16 @@ def test_ebm_kernels_reproduce_numpy(name, fibre, prony):
         history = None if ebm.prony is None else (ebm.prony.gamma.copy(), ebm.prony.g.copy())
         runs[kernel] = (f, energy, x_swept, state, np.array(ebm.red_history), history)
     (f0, e0, xs0, s0, red0, h0), (f1, e1, xs1, s1, red1, h1) = runs["numpy"], runs["numba"]
+    tol = AMPLIFICATION[material] * ONE_EVALUATION
     assert np.isfinite(f0).all() and e0 > 0.0
-    assert _rel(f1, f0) < 1e-10 and abs(e1 - e0) < 1e-10 * e0
-    assert _rel(xs1, xs0) < 1e-10
-    assert _rel(s1.x, s0.x) < 1e-10 and _rel(s1.v, s0.v) < 1e-10
-    assert np.abs(red1 - red0).max() < 1e-9 * np.abs(red0).max()
+    assert _rel(f1, f0) <= ONE_EVALUATION and abs(e1 - e0) <= ONE_EVALUATION * e0
+    assert _rel(xs1, xs0) <= tol
+    assert _rel(s1.x, s0.x) <= tol and _rel(s1.v, s0.v) <= tol
+    # RED: relative energy differences, energies quadratic in displacements off by tol each: 2 tol per energy
+    assert np.abs(red1 - red0).max() <= 4 * tol
     if prony:
-        assert _rel(h1[0], h0[0]) < 1e-10 and _rel(h1[1], h0[1]) < 1e-10
-        assert np.abs(h0[0]).max() > 0.0  # the history did advance
+        assert _rel(h1[0], h0[0]) <= tol and _rel(h1[1], h0[1]) <= tol
+        assert np.abs(h0[0]).max() > 0.0  # the history did advance (it starts at zero)
 
 
 @pytest.mark.parametrize("name, fibre", [("stvk", None), ("neo_hookean", None), ("stable_neo_hookean", None),
@@ -96,7 +109,7 @@ def test_force_kernel_reproduces_constitutive_forces(name, fibre):
     f = Accelerations(model, {}, "explicit")(x, np.zeros_like(x)) * model.mass[:, None]
     free = ~model.kinematic_mask()
     expected = (reference + model.nodal_external_force())[free]
-    assert _rel(f[free], expected) < 1e-10
+    assert _rel(f[free], expected) <= ONE_EVALUATION + 2 * U  # one evaluation, then / mass * mass
 
 
 def test_explicit_kernel_steps_match_numpy():
@@ -108,7 +121,8 @@ def test_explicit_kernel_steps_match_numpy():
         for _ in range(5):
             state = integrator.step(state, 0.002)
         states[kernel] = state
-    assert _rel(states["numba"].x, states["numpy"].x) < 1e-10
+    # 20 substeps, one force evaluation each; a stable forward-Euler step adds h^2 a to x without amplifying
+    assert _rel(states["numba"].x, states["numpy"].x) <= 20 * ONE_EVALUATION
 
 
 @pytest.mark.parametrize("name", ["neo_hookean", "stable_neo_hookean", "anisotropic_neo_hookean"])
@@ -144,10 +158,19 @@ def _pressed_cube(cells=5):
     return model
 
 
+def _propagation_tol(n_nodes, n_sub):
+    """Modal form: the symmetric eigen-decomposition of the N x N operator (backward error ~ N U), the powers
+    (1 + h lam)^n and V diag V^T (2 N roundings an entry): 3 N U. Sub-step kernel: a node's rate sums <= 30
+    neighbour terms, and a forward-Euler sub-step of the stable diffusion adds it without amplifying: 30 n U.
+    Either path's bound, summed (measured 7.9e-15 modal, 0 sub-steps, against 2.2e-13 at n = 45)."""
+    return (3 * n_nodes + 30 * n_sub) * U
+
+
 @pytest.mark.parametrize("propagation", ["modal", "substeps"])
 def test_cnn_potential_kernels_reproduce_the_euler_substeps(propagation):
     """The closed-form modal propagation and the numba sub-step kernel give the NumPy forward-Euler
-    sub-steps' potential (Zhang 4.12, 4.24) to 1e-10, in the transient and with fixed cells held non-zero."""
+    sub-steps' potential (Zhang 4.12, 4.24) within :func:`_propagation_tol`, in the transient and with fixed
+    cells held non-zero."""
     model = _pressed_cube()
     reference = EnergyPropagation(model, {"kernel": "numpy"})
     fast = EnergyPropagation(model, {})
@@ -157,11 +180,12 @@ def test_cnn_potential_kernels_reproduce_the_euler_substeps(propagation):
     phi0 = rng.normal(size=model.X.shape) * np.abs(reference.steady_potential()).max()
     for dt in (0.01, 0.05, 0.2):
         assert reference.substeps(dt) > 1
+        tol = _propagation_tol(model.n_nodes, reference.substeps(dt))
         expected = reference.evolve(phi0.copy(), dt)
         got = fast.evolve(phi0.copy(), dt)
-        assert _rel(got, expected) < 1e-10
-        # stepping on from its own result (the modal path reuses its modal coordinates)
-        assert _rel(fast.evolve(got, dt), reference.evolve(expected, dt)) < 1e-10
+        assert _rel(got, expected) <= tol
+        # stepping on from its own result (the modal path reuses its modal coordinates): twice the bound
+        assert _rel(fast.evolve(got, dt), reference.evolve(expected, dt)) <= 2 * tol
     assert np.abs(reference.evolve(phi0.copy(), 0.05) - reference.steady_potential()).max() > 0.1 * np.abs(phi0).max()  # a transient
     # fixed cells held at a non-zero potential during the call (the coupling term of the modal form)
     held = np.zeros_like(phi0)
@@ -172,8 +196,8 @@ def test_cnn_potential_kernels_reproduce_the_euler_substeps(propagation):
     for _ in range(n):
         expected = expected + h * reference.rate(expected)
     expected[model.fixed] = 0.0  # evolve() returns the fixed-state cells at phi = 0 (4.26)
-    assert _rel(fast.evolve(held.copy(), 0.05), expected) < 1e-10
-    assert _rel(reference.evolve(held.copy(), 0.05), expected) < 1e-12
+    assert _rel(fast.evolve(held.copy(), 0.05), expected) <= _propagation_tol(model.n_nodes, n)
+    assert _rel(reference.evolve(held.copy(), 0.05), expected) <= 30 * n * U  # the same sub-steps, summed as written
 
 
 @pytest.mark.parametrize("gradient", ["median_dual", "edge"])
@@ -199,8 +223,8 @@ def test_cnn_energy_force_kernel_and_steps_match_numpy(gradient):
 
 # -- the blocked kernel (sim.integrators.ebm.blocked, the default) against the scalar numba kernel -------------------------
 
-@pytest.mark.parametrize("name, fibre, prony", MATERIALS, ids=IDS)
-def test_ebm_blocked_kernel_reproduces_the_scalar_kernel(name, fibre, prony):
+@pytest.mark.parametrize("name, fibre, prony, material", [(*m, i) for m, i in zip(MATERIALS, IDS)], ids=IDS)
+def test_ebm_blocked_kernel_reproduces_the_scalar_kernel(name, fibre, prony, material):
     """Fixed bottom, prescribed top, an external load, every material, Prony: one sweep set and three whole steps
     (prediction, iterations, velocities, RED, Prony history) equal to the scalar kernel to 1e-10."""
     runs = {}
@@ -216,12 +240,13 @@ def test_ebm_blocked_kernel_reproduces_the_scalar_kernel(name, fibre, prony):
         history = None if ebm.prony is None else (ebm.prony.gamma.copy(), ebm.prony.g.copy())
         runs[kernel] = (x_swept, state, np.array(ebm.red_history), ebm.work_in, history, model.X)
     (xs0, s0, red0, w0, h0, X), (xs1, s1, red1, w1, h1, _) = runs["numba"], runs["blocked"]
-    assert _rel(xs1 - X, xs0 - X) < 1e-10
-    assert _rel(s1.x - X, s0.x - X) < 1e-10 and _rel(s1.v, s0.v) < 1e-10 and s1.t == s0.t
+    tol = AMPLIFICATION[material] * ONE_EVALUATION  # relative to the displacements (|u| ~ 1e-3 |x|): a stricter test
+    assert _rel(xs1 - X, xs0 - X) <= tol
+    assert _rel(s1.x - X, s0.x - X) <= tol and _rel(s1.v, s0.v) <= tol and s1.t == s0.t
     assert np.abs(s0.x - X).max() > 1e-3  # the body did move
-    assert abs(w1 - w0) < 1e-10 * abs(w0) and np.abs(red1 - red0).max() < 1e-9 * np.abs(red0).max()
+    assert abs(w1 - w0) <= 2 * tol * abs(w0) and np.abs(red1 - red0).max() <= 4 * tol  # energies: quadratic
     if prony:
-        assert _rel(h1[0], h0[0]) < 1e-10 and _rel(h1[1], h0[1]) < 1e-10
+        assert _rel(h1[0], h0[0]) <= tol and _rel(h1[1], h0[1]) <= tol
 
 
 def test_ebm_blocked_kernel_with_overlapping_groups_and_substeps():
