@@ -283,3 +283,9 @@ def test_resume_keeps_frames_with_their_pass_files_and_cameras_json_lists_every_
     assert np.array_equal(_load(out, "depth", 2), reference)
     assert sorted(p.name for p in (out / "passes").iterdir()) == [
         f"{n}_{k:04d}.npy" for n in ("depth", "segmentation") for k in (1, 2, 3)]
+
+
+def test_render_passes_refuses_a_pass_it_cannot_make(plane):
+    scene, _ = plane
+    with pytest.raises(tissuerender.UserError, match="render_passes: passes: .* found 'flow'"):
+        tissuerender.render_passes(scene, passes=["depth", "flow"])
