@@ -289,3 +289,20 @@ def test_render_passes_refuses_a_pass_it_cannot_make(plane):
     scene, _ = plane
     with pytest.raises(tissuerender.UserError, match="render_passes: passes: .* found 'flow'"):
         tissuerender.render_passes(scene, passes=["depth", "flow"])
+
+
+def test_material_coords_survive_the_near_plane_cut(plane, tmp_path):
+    # the near plane at 0.2 m cuts the slab's near part away: the triangles it crosses get new vertices on
+    # their edges, whose rest positions must be carried along (a static body: rest = where it is)
+    data = copy.deepcopy(PLANE)
+    data["camera"]["near"] = 0.2
+    arrays = tissuerender.render_passes(_scene(tmp_path, data))
+    depth, coords = arrays["depth"], arrays["material_coords"]
+    C, D = _rays(arrays["camera"])
+    seen = np.isfinite(depth)
+    assert seen.sum() > 200 and depth[seen].min() >= np.float32(0.2)
+    X = C + depth[seen][:, None].astype(float) * D[seen]
+    assert (np.abs(X[:, 2] - TOP) < 1e-7).mean() > 0.5  # mostly the top face (to float32 depth), beyond the cut
+    assert _load(plane[1], "depth").min() < 0.18  # which, without the cut, is seen from 0.175 m on
+    bound = F32 * np.abs(X).max() + (F32 + F64) * depth[seen].max() * np.linalg.norm(D[seen], axis=1).max()
+    assert np.abs(coords[seen] - X).max() <= bound
