@@ -147,3 +147,18 @@ def test_executed_stages_are_a_subset_of_the_plan_for_a_dynamic_scene(scene_dict
     recorder_names = set(tissuerender.render(scene, tmp_path / "out", progress=False).manifest["executed"])
     plan = make_plan(scene)
     assert {"simulate", "embed"} <= recorder_names <= set(plan.names)
+
+
+def test_output_passes_add_one_pass_raster_each_asked_pass_and_the_writer(scene_dict, write_scene, capsys):
+    base = make_plan(load_scene(write_scene(scene_dict))).names
+    scene_dict["output"]["passes"] = ["material_coords", "depth"]
+    path = write_scene(scene_dict)
+    plan = make_plan(load_scene(path))
+    # the passes run after the colour stages, in their fixed order, whatever the order of the list
+    assert plan.names == base + ["passes.raster", "passes.depth", "passes.material_coords", "write_passes"]
+    skipped = {s.name: s.reason for s in plan.skipped}
+    assert skipped["passes.normal"] == "normal not in output.passes"
+    assert skipped["passes.segmentation"] == "segmentation not in output.passes"
+    assert main(["plan", str(path)]) == 0
+    lines = [line.split(None, 1) for line in capsys.readouterr().out.splitlines()]
+    assert ["passes.raster", "output.passes lists material_coords, depth"] in lines

@@ -8,9 +8,9 @@ Python API (the CLI is a thin layer over it)::
     tissuerender.render(scene, "out/")                       # frames + manifest.json
 """
 from tissuerender.errors import SceneError, UserError
-from tissuerender.pipeline import render, render_image
+from tissuerender.pipeline import render, render_image, render_passes
 from tissuerender.plan import make_plan
 from tissuerender.scene import Scene, load_scene
 
 __version__ = "0.1.0"
-__all__ = ["Scene", "SceneError", "UserError", "load_scene", "make_plan", "render", "render_image", "__version__"]
+__all__ = ["Scene", "SceneError", "UserError", "load_scene", "make_plan", "render", "render_image", "render_passes", "__version__"]

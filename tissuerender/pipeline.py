@@ -19,6 +19,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 import postfx
 from sim.output import write_vtu
+from tissuerender import groundtruth
 from tissuerender.checks import check_scene
 from tissuerender.errors import UserError
 from tissuerender.finite import NonFiniteError, frame_at
@@ -37,16 +38,21 @@ def frame_name(index: int, ext: str = "png") -> str:
 
 
 def render_hdr(world: World, scene: Scene, plan: Plan, recorder: StageRecorder, t: float, seed: int,
-               width: int | None = None, height: int | None = None, previous=None):
-    """Raster and shade one frame: (FrameResult, surface positions by body name)."""
+               width: int | None = None, height: int | None = None, previous=None, passes=None):
+    """Raster and shade one frame: (FrameResult, surface positions by body name); ``result.passes`` holds the
+    ground-truth ``passes`` (default: the scene's ``output.passes``)."""
     objects, positions = render_objects(world, scene, t, plan, recorder, previous)
+    camera = camera_for(scene, width, height)
     try:
-        result = render_frame(objects, camera_for(scene, width, height), light_for(scene),
-                              settings_for(scene, seed), recorder=recorder)
+        result = render_frame(objects, camera, light_for(scene), settings_for(scene, seed), recorder=recorder)
     except NotImplementedError as e:
         raise UserError(f"{scene.path}: [effects] asks for something this renderer cannot do: {e}") from None
     except NonFiniteError as e:
         raise e.located(scene.path, frame_at(t, scene.output.fps), [o.name for o in objects]) from None
+    wanted = scene.output.passes if passes is None else passes
+    if wanted:
+        result.passes = groundtruth.ground_truth(objects, groundtruth.rest_positions(world, objects), camera, wanted,
+                                                 recorder)
     return result, positions
 
 
@@ -108,6 +114,8 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
     formats = output_formats(plan)
     recorded = _resumable(out, scene, formats) if resume else set()
     remove_temporaries(out)
+    if (out / groundtruth.PASSES_FOLDER).is_dir():
+        remove_temporaries(out / groundtruth.PASSES_FOLDER)
     recorder = StageRecorder()
     world = check_scene(scene, recorder).world  # the checks `validate` runs, and the world they build
     n_frames = scene.output.frames if frames is None else min(frames, scene.output.frames)
@@ -123,6 +131,9 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
         return data
 
     record({"complete": False})  # from here on the folder's manifest names this scene
+    if "write_passes" in plan:
+        groundtruth.write_labels(out, groundtruth.labels(scene))
+        _write_cameras(out, scene, done)
     bar = _progress(progress, n_frames, scene.name)
     try:
         for k in range(1, n_frames + 1):
@@ -139,7 +150,12 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
             result, previous = render_hdr(world, scene, plan, recorder, t, seed, previous=previous)
             image, backend_used = postprocess(scene, result.hdr, result.depth, recorder, seed, frame=k)
             written += _write_frame(out, k, plan, recorder, world, image, result.hdr)
+            if "write_passes" in plan:
+                with recorder.run("write_passes"):
+                    written += groundtruth.write_passes(out, k, result.passes, _body_ids(world))
             done.add(k)
+            if "write_passes" in plan:
+                _write_cameras(out, scene, done)  # before the manifest records the frame as finished
             record({"complete": False})
             bar.advance()
     finally:
@@ -177,7 +193,25 @@ def _frame_files(out: Path, k: int, plan: Plan, world: World) -> list[Path]:
     wanted = [out / frame_name(k)] if "write_png" in plan else []
     wanted += [out / frame_name(k, "npy")] if "write_hdr" in plan else []
     wanted += [out / f"{body.spec.name}_{k:04d}.vtu" for body in world.bodies] if "write_vtu" in plan else []
+    wanted += [groundtruth.pass_path(out, name, k) for name in plan_passes(plan)]
     return wanted
+
+
+def plan_passes(plan: Plan) -> list[str]:
+    """The ground-truth passes the plan writes."""
+    return [name for name in groundtruth.PASS_NAMES if f"passes.{name}" in plan]
+
+
+def _body_ids(world: World) -> list[int]:
+    """Segmentation ids of the simulated bodies (drawn first: ids 1 ... n)."""
+    return list(range(1, len(world.bodies) + 1))
+
+
+def _write_cameras(out: Path, scene: Scene, done: set[int]) -> None:
+    """``cameras.json`` with an entry for every finished frame (the camera does not move yet)."""
+    camera = camera_for(scene)
+    frames = [groundtruth.camera_entry(camera, k, (k - 1) / scene.output.fps) for k in sorted(done)]
+    groundtruth.write_cameras(out, groundtruth.cameras_document(camera, frames))
 
 
 def _surface_positions(world: World, plan: Plan) -> dict[str, np.ndarray]:
@@ -215,9 +249,10 @@ def render_image(scene: Scene, seed: int | None = None, frame: int = 1, resoluti
 
 
 def render_frame_arrays(scene: Scene, seed: int | None = None, frame: int = 1,
-                        resolution: tuple[int, int] | None = None, recorder: StageRecorder | None = None):
+                        resolution: tuple[int, int] | None = None, recorder: StageRecorder | None = None,
+                        passes=None):
     """One frame: (display uint8 RGB (H, W, 3), the renderer's ``FrameResult``: linear HDR, view depth and
-    the G-buffer, as the post-effects receive them)."""
+    the G-buffer, as the post-effects receive them, and the ground-truth ``passes``, default the scene's)."""
     recorder = recorder_or_new(recorder)
     checked = check_scene(scene, recorder)
     plan, world = checked.plan, checked.world
@@ -226,9 +261,29 @@ def render_frame_arrays(scene: Scene, seed: int | None = None, frame: int = 1,
             advance(world, scene, recorder)
     w, h = resolution if resolution is not None else (None, None)
     s = frame_seed(scene, frame, seed)
-    result, _ = render_hdr(world, scene, plan, recorder, (frame - 1) / scene.output.fps, s, w, h)
+    result, _ = render_hdr(world, scene, plan, recorder, (frame - 1) / scene.output.fps, s, w, h, passes=passes)
     image, _ = postprocess(scene, result.hdr, result.depth, recorder, s, w, h, frame)
     return postfx.to_uint8(image), result
+
+
+def render_passes(scene: Scene, frame: int = 1, passes=None, seed: int | None = None,
+                  resolution: tuple[int, int] | None = None) -> dict:
+    """One frame's colour and ground truth as arrays, without a folder (docs/ground-truth.md): ``"colour"``
+    display uint8 RGB (H, W, 3), ``"hdr"`` linear float32 (H, W, 3), each of ``passes`` (default: the scene's
+    ``output.passes``, or all of them when it lists none) as written to ``passes/``, ``"labels"`` (the
+    ``labels.json`` instances) and ``"camera"`` (``cameras.json`` with this frame's entry)."""
+    wanted = list(passes if passes is not None else (scene.output.passes or groundtruth.PASS_NAMES))
+    unknown = [p for p in wanted if p not in groundtruth.PASS_NAMES]
+    if unknown:
+        raise UserError(f"render_passes: passes: expected names from {', '.join(groundtruth.PASS_NAMES)}, "
+                        f"found {unknown[0]!r}")
+    colour, result = render_frame_arrays(scene, seed, frame, resolution, passes=wanted)
+    w, h = resolution if resolution is not None else (None, None)
+    camera = camera_for(scene, w, h)
+    entry = groundtruth.camera_entry(camera, frame, (frame - 1) / scene.output.fps)
+    return {"colour": colour, "hdr": result.hdr, **result.passes,
+            "labels": groundtruth.labels(scene),
+            "camera": groundtruth.cameras_document(camera, [entry])}
 
 
 class _progress:

@@ -14,6 +14,7 @@ import materials
 import postfx
 from sim.integrators import supported_by, supports
 from tissuerender.scene import Scene
+from tissuerender.scene.schema import PASSES
 
 
 @dataclass(frozen=True)
@@ -117,4 +118,11 @@ def make_plan(scene: Scene) -> Plan:
         decide(f"postfx.{name}", name in listed, f"effects.{name} ({eff.backend} backend)", "not listed in effects")
     decide("write_png", "png" in scene.output.formats, "output.formats lists png", "png not requested")
     decide("write_hdr", "hdr_npy" in scene.output.formats, "output.formats lists hdr_npy", "hdr_npy not requested")
+    passes = scene.output.passes
+    # ground truth (docs/ground-truth.md): one raster at the output resolution (pixel centres) feeds every pass
+    decide("passes.raster", bool(passes), f"output.passes lists {', '.join(passes)}", "no output.passes")
+    for name in PASSES:
+        decide(f"passes.{name}", name in passes, f"output.passes lists {name}", f"{name} not in output.passes")
+    decide("write_passes", bool(passes), "passes/<pass>_NNNN.npy, cameras.json and labels.json",
+           "no output.passes")
     return Plan(stages=tuple(run), skipped=tuple(skip))

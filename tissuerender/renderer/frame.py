@@ -54,6 +54,7 @@ class FrameResult:
     hdr: np.ndarray
     depth: np.ndarray
     gbuffer: dict = field(default_factory=dict)
+    passes: dict = field(default_factory=dict)  # ground-truth passes by name (tissuerender.groundtruth)
 
 
 def check_light(light: AreaLight, settings: RenderSettings) -> bool:

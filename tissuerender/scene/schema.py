@@ -28,6 +28,7 @@ RGB = Annotated[list[Annotated[float, Field(ge=0.0, le=1e6)]], Field(min_length=
 
 INTEGRATORS = (*REGISTRY, "none")
 FORMATS = ("png", "hdr_npy", "vtu")
+PASSES = ("depth", "normal", "segmentation", "material_coords")  # docs/ground-truth.md
 AXES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
 
@@ -348,6 +349,10 @@ class Output(Strict):
     jitter: bool = Field(True, description=(
         "with supersampling > 1, each sample at a seeded random point of its own cell (stratified jitter); false: "
         "the cell centres"))
+    passes: Annotated[list[Literal[PASSES]], Field(description=(  # type: ignore[valid-type]
+        "ground-truth passes written per frame as passes/<pass>_0001.npy, with cameras.json and labels.json "
+        "(docs/ground-truth.md): depth (camera z [m], float32), normal (camera-space unit normals), segmentation "
+        "(int32 instance ids), material_coords (rest position [m] of the tissue point seen)"))] = []
 
 
 class EffectsBase(Strict):

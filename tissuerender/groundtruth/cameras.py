@@ -1,0 +1,70 @@
+"""The camera model as vision code reads it: OpenCV intrinsics ``K`` and world-to-camera poses, and the table of
+segmentation instance ids.
+
+The renderer's pinhole (``tissuerender.renderer.raster.project``) maps a point at camera coordinates
+``(xv, yv, zv)`` (``xv`` along the camera's right, ``yv`` along its up, ``zv`` along its forward axis) to the
+continuous screen position ``sx = (xv / zv / tan_x + 1) W / 2``, ``sy = (1 - yv / zv / tan_y) H / 2``, with
+``tan_x = tan(fov_deg / 2)`` (the field of view is horizontal) and ``tan_y = tan_x H / W``; pixel ``i`` spans
+``[i, i + 1)`` and is sampled at its centre ``i + 0.5``. In OpenCV's convention (x right, y down, z forward;
+pixel centres at integer coordinates) the same map is ``u = fx x / z + cx``, ``v = fy y / z + cy`` with
+
+    fx = fy = W / (2 tan_x),    cx = W / 2 - 1/2,    cy = H / 2 - 1/2,
+
+and ``(x, y, z) = (xv, -yv, zv)``: the rows of the world-to-camera rotation are the camera's right, down and
+forward axes.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from tissuerender.renderer.camera import Camera, camera_basis
+
+CONVENTIONS = ("OpenCV pinhole camera: camera axes x right, y down, z forward; world_to_camera maps world "
+               "metres to camera metres (X_cam = R X_world + t); K maps camera coordinates to pixels with the "
+               "centre of pixel (column u, row v) at integer (u, v) and (0, 0) the top-left pixel; depth is camera "
+               "z in metres (inf where nothing is seen); no lens distortion is applied to colour or passes.")
+
+
+def intrinsics(camera: Camera) -> np.ndarray:
+    """K (3, 3) of the renderer's pinhole with horizontal field of view ``camera.fov_deg`` (square pixels)."""
+    w, h = int(camera.width), int(camera.height)
+    f = w / (2.0 * np.tan(np.radians(camera.fov_deg) / 2.0))
+    return np.array([[f, 0.0, w / 2.0 - 0.5], [0.0, f, h / 2.0 - 0.5], [0.0, 0.0, 1.0]])
+
+
+def world_to_camera(camera: Camera) -> np.ndarray:
+    """The 4 x 4 rigid transform from world metres to OpenCV camera metres (x right, y down, z forward)."""
+    r, u, f = camera_basis(camera.position, camera.look_at, camera.up)
+    R = np.stack([r, -u, f])
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ np.asarray(camera.position, float)
+    return T
+
+
+def camera_entry(camera: Camera, index: int, time: float) -> dict:
+    """One frame's entry of ``cameras.json``."""
+    return {"index": int(index), "time": float(time), "world_to_camera": world_to_camera(camera).tolist()}
+
+
+def cameras_document(camera: Camera, frames: list[dict]) -> dict:
+    """``cameras.json``: image size, K, distortion (none yet) and one entry per frame written so far."""
+    return {"width": int(camera.width), "height": int(camera.height), "K": intrinsics(camera).tolist(),
+            "distortion": {"model": "none", "coefficients": []}, "conventions": CONVENTIONS, "frames": frames}
+
+
+def labels(scene) -> list[dict]:
+    """The segmentation instances in id order: 0 the background, then one per render object in the order
+    ``tissuerender.render_inputs.render_objects`` draws them (bodies, static surfaces, visible tools; bodies
+    and surfaces each in scene order, as ``tissuerender.world.build_world`` builds them), so the instance id
+    of render object ``k`` is ``k + 1``. ``class`` is the semantic class: the tissue's material preset for
+    bodies and surfaces, ``"tool"`` for tools."""
+    table = [{"id": 0, "name": "background", "kind": "background", "class": "background"}]
+    for kind in ("body", "surface"):
+        for obj in scene.objects:
+            if obj.kind == kind:
+                table.append({"id": len(table), "name": obj.name, "kind": kind, "class": obj.material})
+    for tool in scene.tools:
+        if tool.visible:
+            table.append({"id": len(table), "name": tool.name, "kind": "tool", "class": "tool"})
+    return table
