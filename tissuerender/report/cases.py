@@ -57,7 +57,7 @@ SWEEPS = {
         "msd": {"dts": [0.0008, 0.005, 0.01], "Ks": [5.0, 4.0, 2.0], "order_dt": 0.0008},
         "mesh": {"cylinder_h": 0.25, "cube_cells": 4, "settle_s": 4.0,
                  "xpbd": [[1, 1], [1, 5], [1, 20]], "xpbd_dt": 0.05,
-                 "ebm": [20], "ebm_load_steps": 8, "explicit_dts": [0.005], "cnn_dts": [0.01],
+                 "ebm": [20], "ebm_load_steps": 8, "explicit_dts": [0.005], "cnn_dts": [0.01, 0.005],
                  "cnn_K": 4.0, "chainmail_alpha": [0.2], "order_dts": [0.1, 0.05, 0.025], "order_t": 0.2},
         "rates": {"steps": 5, "repeats": 1, "cnn_energy": False},
     },
