@@ -96,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "render":
             print(f"{how}: finished frames are kept; rerun with --resume to continue", file=sys.stderr)
         elif args.command == "report":
-            print(f"{how}: finished cases are kept in {args.out}/cases; rerun the same command to continue", file=sys.stderr)
+            print(f"{how}: finished cases are kept in {args.out}/cases; rerun the same command to continue",
+                  file=sys.stderr)
         else:
             print(f"{how}: {args.command} wrote nothing further", file=sys.stderr)
         return 143 if isinstance(e, Terminated) else 130
