@@ -126,9 +126,13 @@ def test_mass_spring_damper_claims_hold_and_unrun_cases_are_not_comparable(repor
 def test_html_embeds_every_figure_and_lists_every_claim(report_dir):
     out, report = report_dir
     text = (out / "report.html").read_text()
-    figures = re.findall(r'<img class="figure" data-case="([a-z_]+)"[^>]*src="data:image/png;base64,([^"]+)"', text)
-    assert sorted(name for name, _ in figures) == sorted(CASES)
-    for _, data in figures:
+    figures = re.findall(r'<img class="figure" data-case="([a-z_]+)" data-figure="([a-z-]+)"[^>]*'
+                         r'src="data:image/png;base64,([^"]+)"', text)
+    # error against time for every case, the displacement along the measurement line for the mesh cases
+    assert sorted((name, kind) for name, kind, _ in figures) == sorted(
+        [(name, "error-time") for name in CASES] + [("cylinder_extension", "line")])
+    assert text.count("<img") == len(figures)
+    for _, _, data in figures:
         assert base64.b64decode(data)[:8] == b"\x89PNG\r\n\x1a\n"
     assert not re.search(r'src="(?!data:)', text)  # self-contained: no external image or script
     for claim in CLAIMS:

@@ -59,6 +59,36 @@ def figure_png(case: dict) -> bytes:
     return buffer.getvalue()
 
 
+def line_png(case: dict) -> bytes:
+    """Zhang Figs. 5.5(c)-5.7(c): the measured displacement component along the measurement line, the
+    reference's and, per integrator, its most accurate setting's (and EBM at 20 iterations, the thesis's)."""
+    ref = case["reference"]
+    fig, ax = plt.subplots(figsize=(6.4, 3.6), dpi=80)
+    ax.plot(ref["line_coord_m"], ref["line_u_m"], "k-", lw=2, label="reference")
+    chosen = {}
+    for p in case["points"]:
+        if p.get("line_u_m") is None:
+            continue
+        best = chosen.get(p["integrator"])
+        if best is None or p["rel_l2"] < best["rel_l2"]:
+            chosen[p["integrator"]] = p
+    ebm20 = [p for p in case["points"] if p["integrator"] == "ebm" and p["settings"].get("iterations") == 20
+             and p.get("line_u_m") is not None]
+    for p in [*chosen.values(), *[q for q in ebm20 if q is not chosen.get("ebm")]]:
+        ax.plot(ref["line_coord_m"], p["line_u_m"], marker=MARKERS.get(p["integrator"], "o"), ms=4, lw=1,
+                color=COLOURS.get(p["integrator"]), alpha=0.8, label=f"{p['integrator']} {p['setting']}")
+    ax.set_xlabel("position along the measurement line [m]")
+    ax.set_ylabel(f"u_{ref['line_component']} [m]")
+    ax.set_title(f"{case['title']}: u_{ref['line_component']} along the measurement line", fontsize=10)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", metadata={"Software": None})
+    plt.close(fig)
+    return buffer.getvalue()
+
+
 def _table(headers: list[str], rows: list[list], cls: str = "") -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
     body = "".join("<tr>" + "".join(f"<td>{cell}</td>" for cell in row) + "</tr>" for row in rows)
@@ -75,8 +105,12 @@ def _case_section(case: dict) -> str:
                              for r in case["rows"]]))
         return "\n".join(parts)
     png = base64.b64encode(figure_png(case)).decode("ascii")
-    parts.append(f'<img class="figure" data-case="{name}" alt="error against time, {name}" '
+    parts.append(f'<img class="figure" data-case="{name}" data-figure="error-time" alt="error against time, {name}" '
                  f'src="data:image/png;base64,{png}">')
+    if "line_u_m" in case.get("reference", {}):
+        png = base64.b64encode(line_png(case)).decode("ascii")
+        parts.append(f'<img class="figure" data-case="{name}" data-figure="line" alt="displacement along the line, '
+                     f'{name}" src="data:image/png;base64,{png}">')
     ref = case["reference"]
     parts.append(f"<p>Reference: {html.escape(ref['kind'])}"
                  + (f"; mesh {case['mesh']['nodes']} nodes, {case['mesh']['tets']} tets; reference wall time "

@@ -57,6 +57,7 @@ def mesh_point(integrator: str, label: str, settings: dict, case, u_ref, compone
         u = state.x - case.model.X
         point["rel_l2"] = relative_l2(u, u_ref)
         point.update(line_errors(u, u_ref, case.line, component))
+        point["line_u_m"] = u[case.line, component].tolist()
         red = getattr(solver, "red_history", None)
         if red:
             point["red"] = float(red[-1])
