@@ -84,7 +84,8 @@ def _stored(path: Path, key: dict) -> dict | None:
 
 
 class _Bar:
-    """A rich progress bar with the elapsed time and an estimate of the rest, when asked for."""
+    """A rich progress bar with the elapsed time and an estimate of the rest, when asked for; it advances per
+    swept setting (``cases.work_units``), so the estimate moves within a long case."""
 
     def __init__(self, enabled: bool, total: int):
         self.progress = None
@@ -98,9 +99,9 @@ class _Bar:
         if self.progress is not None:
             self.progress.update(self.task, description=text)
 
-    def advance(self) -> None:
+    def advance(self, units: int = 1) -> None:
         if self.progress is not None:
-            self.progress.advance(self.task)
+            self.progress.advance(self.task, units)
 
     def close(self) -> None:
         if self.progress is not None:
@@ -116,7 +117,8 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
     names = cases if cases is not None else parse_cases(None, quick)
     versions, code = package_versions(), code_hash()
     results, timings = {}, {}
-    bar = _Bar(progress, len(names))
+    units = {name: case_runs.work_units(name, case_runs.sweep_for(name, level)) for name in names}
+    bar = _Bar(progress, sum(units.values()))
     start = time.perf_counter()
     try:
         for name in names:
@@ -127,14 +129,14 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
             stored = _stored(path, key)
             if stored is not None:
                 results[name] = {**stored["result"], "cached": True, "computed_wall_s": stored["wall_s"]}
+                bar.advance(units[name])
             else:
                 t0 = time.perf_counter()
-                result = finite_json(case_runs.run_case(name, sweep))
+                result = finite_json(case_runs.run_case(name, sweep, bar.advance))
                 wall = time.perf_counter() - t0
                 write_json(path, {"kind": KIND, "key": key, "wall_s": wall, "result": result})
                 results[name] = {**result, "cached": False, "computed_wall_s": wall}
             timings[name] = results[name]["computed_wall_s"]
-            bar.advance()
     finally:
         bar.close()
     report = {"kind": KIND, "format": FORMAT, "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),

@@ -69,12 +69,24 @@ def sweep_for(case: str, level: str) -> dict:
     return SWEEPS[level]["msd" if case == "msd" else "rates" if case == "rates" else "mesh"]
 
 
-def run_case(case: str, sweep: dict) -> dict:
+def work_units(case: str, sweep: dict) -> int:
+    """How many times ``run_case`` calls its ``tick``: the progress bar's share of the case."""
     if case == "msd":
-        return run_msd(sweep)
+        return 1
     if case == "rates":
-        return run_rates(sweep)
-    return run_mesh(case, sweep)
+        return 3 if sweep["cnn_energy"] else 2
+    return 2 + sum(len(sweep[k]) for k in ("xpbd", "ebm", "explicit_dts", "cnn_dts", "chainmail_alpha"))
+
+
+def run_case(case: str, sweep: dict, tick=lambda: None) -> dict:
+    """Run one case; ``tick()`` is called after each unit of work (``work_units`` in all)."""
+    if case == "msd":
+        result = run_msd(sweep)
+        tick()
+        return result
+    if case == "rates":
+        return run_rates(sweep, tick)
+    return run_mesh(case, sweep, tick)
 
 
 # --- mass–spring–damper -------------------------------------------------------------------------
@@ -177,7 +189,12 @@ def _reference_convergence(case, case_name: str, x_ref, sweep: dict) -> dict:
             "expected_order": 1}
 
 
-def run_mesh(case_name: str, sweep: dict) -> dict:
+def _add(points: list, tick, point: dict) -> None:
+    points.append(point)
+    tick()
+
+
+def run_mesh(case_name: str, sweep: dict, tick=lambda: None) -> dict:
     case = _zhang_case(case_name, sweep)
     model = case.model
     component = LINE_COMPONENT[case_name]
@@ -185,30 +202,33 @@ def run_mesh(case_name: str, sweep: dict) -> dict:
     ref = ReferenceIntegrator(model, {"mode": "quasistatic", "load_steps": 4})
     x_ref = ref.step(State.at_rest(model), case.ramp_time).x
     reference_s = time.perf_counter() - start
+    tick()
     u_ref = x_ref - model.X
     settle = sweep["settle_s"]
     points = []
     for substeps, iterations in sweep["xpbd"]:
         settings = {"substeps": substeps, "iterations": iterations, "damping": 2.0, "material": "model"}
         dt = sweep["xpbd_dt"]
-        points.append(mesh_point("xpbd", f"{substeps}x{iterations}", settings, case, u_ref, component, dt,
+        _add(points, tick, mesh_point("xpbd", f"{substeps}x{iterations}", settings, case, u_ref, component, dt,
                                  int(round(settle / dt))))
     for iterations in sweep["ebm"]:
         n = sweep["ebm_load_steps"]
-        points.append(mesh_point("ebm", f"{iterations} it", {"iterations": iterations}, case, u_ref, component,
+        _add(points, tick, mesh_point("ebm", f"{iterations} it", {"iterations": iterations}, case, u_ref, component,
                                  case.ramp_time / n, n))
     for dt in sweep["explicit_dts"]:
         settings = {"rayleigh_alpha": 1.0, "rayleigh_beta": 0.01}
-        points.append(mesh_point("explicit", f"dt {dt:g}", settings, case, u_ref, component, dt,
+        _add(points, tick, mesh_point("explicit", f"dt {dt:g}", settings, case, u_ref, component, dt,
                                  int(round(settle / dt))))
     for dt in sweep["cnn_dts"]:
         settings = {"rayleigh_alpha": 1.0, "rayleigh_beta": 0.01, "K": sweep["cnn_K"]}
-        points.append(mesh_point("cnn", f"dt {dt:g}, K {sweep['cnn_K']:g}", settings, case, u_ref, component, dt,
+        _add(points, tick, mesh_point("cnn", f"dt {dt:g}, K {sweep['cnn_K']:g}", settings, case, u_ref, component, dt,
                                  int(round(settle / dt))))
     for alpha in sweep["chainmail_alpha"]:
         n = 10
-        points.append(mesh_point("cnn_chainmail", f"alpha {alpha:g}", {"alpha": alpha}, case, u_ref, component,
+        _add(points, tick, mesh_point("cnn_chainmail", f"alpha {alpha:g}", {"alpha": alpha}, case, u_ref, component,
                                  case.ramp_time / n, n))
+    convergence = _reference_convergence(case, case_name, x_ref, sweep)
+    tick()
     measures = {}
     for p in points:
         if p["integrator"] == "ebm" and p["settings"]["iterations"] == 20:
@@ -224,7 +244,7 @@ def run_mesh(case_name: str, sweep: dict) -> dict:
                           "line_component": "xyz"[component], "line_peak_m": float(d.max()),
                           "line_coord_m": case.line_coord.tolist(),
                           "line_u_m": u_ref[case.line, component].tolist()},
-            "convergence": _reference_convergence(case, case_name, x_ref, sweep), "points": points,
+            "convergence": convergence, "points": points,
             "pareto": pareto_front(points, "rel_l2"), "measures": measures}
 
 
@@ -265,7 +285,7 @@ def _rate(name, model, settings, dt, steps, repeats) -> float:
     return float(np.median(rates))
 
 
-def run_rates(sweep: dict) -> dict:
+def run_rates(sweep: dict, tick=lambda: None) -> dict:
     runs = [("ebm_isotropic_504tets", "ebm", _ebm_block("neo_hookean", (7, 4, 3)), {"iterations": 20}, 1e-3),
             ("ebm_anisotropic_216tets", "ebm", _ebm_block("anisotropic_neo_hookean", (4, 3, 3), [0.0, 0.0, 1.0]),
              {"iterations": 20}, 1e-3)]
@@ -275,6 +295,7 @@ def run_rates(sweep: dict) -> dict:
     measures, rows = {}, []
     for key, name, model, settings, dt in runs:
         hz = _rate(name, model, settings, dt, sweep["steps"], sweep["repeats"])
+        tick()
         measures[f"{key}_hz"] = hz
         rows.append({"run": key, "integrator": name, "settings": settings, "dt_s": dt, "nodes": int(model.n_nodes),
                      "tets": int(model.n_tets), "steps_per_s": hz})
