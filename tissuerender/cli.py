@@ -15,6 +15,7 @@ from sim.errors import MeshError
 from tissuerender import golden, load_scene, lookdev, make_plan, render
 from tissuerender.checks import check_scene
 from tissuerender.errors import UserError
+from tissuerender.report import accuracy as report_accuracy
 
 
 def _cmd_render(args) -> int:
@@ -65,6 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_validate)
     golden.add_cli(sub)
     lookdev.add_cli(sub)
+    report_accuracy.add_cli(sub)
     return parser
 
 
@@ -93,6 +95,9 @@ def main(argv: list[str] | None = None) -> int:
         how = "terminated" if isinstance(e, Terminated) else "interrupted"
         if args.command == "render":
             print(f"{how}: finished frames are kept; rerun with --resume to continue", file=sys.stderr)
+        elif args.command == "report":
+            print(f"{how}: finished cases are kept in {args.out}/cases; rerun the same command to continue",
+                  file=sys.stderr)
         else:
             print(f"{how}: {args.command} wrote nothing further", file=sys.stderr)
         return 143 if isinstance(e, Terminated) else 130

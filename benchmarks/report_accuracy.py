@@ -1,0 +1,58 @@
+"""The accuracy report's figures as text: per case, each integrator setting's error and wall time per simulated
+second (Pareto front marked), the reference's observed convergence order, and the thesis claims' verdicts.
+Runs ``tissuerender report accuracy`` in-process (``tissuerender.report.accuracy.run_report``).
+
+Usage: .venv/bin/python benchmarks/report_accuracy.py [--quick] [-o DIR]
+(DIR defaults to a fresh temporary folder, so nothing is reused from an earlier run.)
+The last line is one JSON object: {"<case>_<integrator>_<setting>_err": ..., "..._s_per_sim_s": ..., "claims": {...}}.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+
+# benchmarks/postfx.py would shadow the postfx package: keep this folder off the import path
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirname(os.path.abspath(__file__))]
+
+from tissuerender.report.accuracy import run_report  # noqa: E402
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="the --quick report: coarse meshes, fewer settings")
+    parser.add_argument("-o", "--out", default=None, help="report folder (default: a new temporary folder)")
+    args = parser.parse_args()
+    out = args.out or tempfile.mkdtemp(prefix="report_accuracy_")
+    report = run_report(out, quick=args.quick)
+    result: dict = {"wall_s": round(report["wall_s"], 1)}
+    for name, case in report["cases"].items():
+        if name == "rates":
+            for row in case["rows"]:
+                print(f"{row['run']:32s} {row['steps_per_s']:10.1f} steps/s")
+                result[f"{row['run']}_hz"] = round(row["steps_per_s"], 1)
+            continue
+        print(f"\n{case['title']} ({case['error_label']}; reference order "
+              f"{', '.join(f'{o:.2f}' for o in case['convergence']['orders'])}, expected "
+              f"{case['convergence']['expected_order']})")
+        front = set(case["pareto"])
+        for i, p in enumerate(case["points"]):
+            err = p.get(case["error_key"])
+            label = f"{p['integrator']} {p['setting']}"
+            text = "failed: " + p["diverged"][:60] if err is None else f"{err:10.4g}"
+            print(f"  {label:28s} {text:>10s} {p['wall_s_per_sim_s']:10.4g} s/s {'pareto' if i in front else ''}")
+            key = f"{name}_{p['integrator']}_{p['setting'].replace(' ', '').replace(',', '_')}"
+            result[f"{key}_err"] = None if err is None else float(f"{err:.4g}")
+            result[f"{key}_s_per_sim_s"] = float(f"{p['wall_s_per_sim_s']:.4g}")
+    print("\nclaims:")
+    for row in report["claims"]:
+        print(f"  {row['id']:38s} {row['verdict']:15s} {row['reason']}")
+    result["claims"] = {row["id"]: row["verdict"] for row in report["claims"]}
+    print(f"report: {out}/report.html")
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()

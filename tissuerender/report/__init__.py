@@ -1,0 +1,1 @@
+"""The accuracy report (issue 17): what accuracy costs in time, on the theses' simulation cases."""

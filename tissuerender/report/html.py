@@ -1,0 +1,168 @@
+"""The accuracy report as one self-contained HTML file: matplotlib figures (Agg backend, embedded as
+base64 PNG) of error against wall time per simulated second for each case with its Pareto front, and the
+tables (points, reference convergence, rates, the theses' claims, what is not covered yet)."""
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+
+import matplotlib
+
+matplotlib.use("Agg")  # off-screen: no display on a render node
+import matplotlib.pyplot as plt  # noqa: E402
+
+COLOURS = {"xpbd": "tab:blue", "ebm": "tab:orange", "explicit": "tab:red", "cnn": "tab:green",
+           "cnn_chainmail": "tab:purple"}
+MARKERS = {"xpbd": "o", "ebm": "s", "explicit": "^", "cnn": "D", "cnn_chainmail": "v"}
+
+
+def _num(value) -> str:
+    if value is None:
+        return "–"
+    if isinstance(value, float):
+        return f"{value:.3g}" if math.isfinite(value) else str(value)
+    return html.escape(str(value))
+
+
+def figure_png(case: dict) -> bytes:
+    """Error against wall time per simulated second, one marker per setting, the Pareto front joined."""
+    points, key = case["points"], case["error_key"]
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=80)
+    for name in dict.fromkeys(p["integrator"] for p in points):
+        mine = [p for p in points if p["integrator"] == name and p.get(key) is not None]
+        if case["case"] == "msd" and name == "cnn":
+            for K in dict.fromkeys(p["settings"]["K"] for p in mine):
+                sub = [p for p in mine if p["settings"]["K"] == K]
+                ax.scatter([p["wall_s_per_sim_s"] for p in sub], [p[key] for p in sub], marker=MARKERS[name],
+                           label=f"cnn K={K:g}", alpha=0.8)
+            continue
+        ax.scatter([p["wall_s_per_sim_s"] for p in mine], [p[key] for p in mine], marker=MARKERS.get(name, "o"),
+                   color=COLOURS.get(name), label=name, alpha=0.8)
+    front = [points[i] for i in case["pareto"]]
+    ax.plot([p["wall_s_per_sim_s"] for p in front], [p[key] for p in front], "k-", lw=1.5, zorder=0,
+            label="Pareto front")
+    ax.scatter([p["wall_s_per_sim_s"] for p in front], [p[key] for p in front], s=140, facecolors="none",
+               edgecolors="k", zorder=3)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("wall time per simulated second [s/s]")
+    ax.set_ylabel(case["error_label"])
+    ax.set_title(case["title"] + (" (cached)" if case.get("cached") else ""), fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", metadata={"Software": None})
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+def line_png(case: dict) -> bytes:
+    """Zhang Figs. 5.5(c)-5.7(c): the measured displacement component along the measurement line, the
+    reference's and, per integrator, its most accurate setting's (and EBM at 20 iterations, the thesis's)."""
+    ref = case["reference"]
+    fig, ax = plt.subplots(figsize=(6.4, 3.6), dpi=80)
+    ax.plot(ref["line_coord_m"], ref["line_u_m"], "k-", lw=2, label="reference")
+    chosen = {}
+    for p in case["points"]:
+        if p.get("line_u_m") is None:
+            continue
+        best = chosen.get(p["integrator"])
+        if best is None or p["rel_l2"] < best["rel_l2"]:
+            chosen[p["integrator"]] = p
+    ebm20 = [p for p in case["points"] if p["integrator"] == "ebm" and p["settings"].get("iterations") == 20
+             and p.get("line_u_m") is not None]
+    for p in [*chosen.values(), *[q for q in ebm20 if q is not chosen.get("ebm")]]:
+        ax.plot(ref["line_coord_m"], p["line_u_m"], marker=MARKERS.get(p["integrator"], "o"), ms=4, lw=1,
+                color=COLOURS.get(p["integrator"]), alpha=0.8, label=f"{p['integrator']} {p['setting']}")
+    ax.set_xlabel("position along the measurement line [m]")
+    ax.set_ylabel(f"u_{ref['line_component']} [m]")
+    ax.set_title(f"{case['title']}: u_{ref['line_component']} along the measurement line", fontsize=10)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", metadata={"Software": None})
+    plt.close(fig)
+    return buffer.getvalue()
+
+
+def _table(headers: list[str], rows: list[list], cls: str = "") -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
+    body = "".join("<tr>" + "".join(f"<td>{cell}</td>" for cell in row) + "</tr>" for row in rows)
+    return f'<table class="{cls}"><tr>{head}</tr>{body}</table>'
+
+
+def _case_section(case: dict) -> str:
+    name = case["case"]
+    parts = [f'<h2 id="case-{name}">{html.escape(case["title"])}{" <em>(cached)</em>" if case["cached"] else ""}</h2>']
+    if name == "rates":
+        parts.append(f"<p>{html.escape(case['statistic'])}, one process, wall time.</p>")
+        parts.append(_table(["run", "integrator", "nodes", "tets", "dt [s]", "steps/s"],
+                            [[r["run"], r["integrator"], r["nodes"], r["tets"], _num(r["dt_s"]), _num(r["steps_per_s"])]
+                             for r in case["rows"]]))
+        return "\n".join(parts)
+    png = base64.b64encode(figure_png(case)).decode("ascii")
+    parts.append(f'<img class="figure" data-case="{name}" data-figure="error-time" alt="error against time, {name}" '
+                 f'src="data:image/png;base64,{png}">')
+    if "line_u_m" in case.get("reference", {}):
+        png = base64.b64encode(line_png(case)).decode("ascii")
+        parts.append(f'<img class="figure" data-case="{name}" data-figure="line" alt="displacement along the line, '
+                     f'{name}" src="data:image/png;base64,{png}">')
+    ref = case["reference"]
+    parts.append(f"<p>Reference: {html.escape(ref['kind'])}"
+                 + (f"; mesh {case['mesh']['nodes']} nodes, {case['mesh']['tets']} tets; reference wall time "
+                    f"{_num(ref['wall_s'])} s" if "mesh" in case else "") + ".</p>")
+    conv = case["convergence"]
+    parts.append(f"<p>Reference convergence: {html.escape(conv['what'])} at steps {conv['dts']}: "
+                 f"observed order {', '.join(_num(o) for o in conv['orders'])} (expected {conv['expected_order']}).</p>")
+    front = set(case["pareto"])
+    mesh = "line_max_m" in {k for p in case["points"] for k in p}
+    headers = ["integrator", "setting", "error", *(["line max [m]", "line mean [m]", "line RMSE [m]", "RED"] if mesh else []),
+               "wall [s]", "wall / sim s", "Pareto", "failure"]
+    rows = []
+    for i, p in enumerate(case["points"]):
+        extra = [_num(p.get(k)) for k in ("line_max_m", "line_mean_m", "line_rmse_m", "red")] if mesh else []
+        rows.append([p["integrator"], html.escape(p["setting"]), _num(p.get(case["error_key"])), *extra,
+                     _num(p["wall_s"]), _num(p["wall_s_per_sim_s"]), "&#9679;" if i in front else "",
+                     html.escape(p["diverged"] or "")])
+    parts.append(f"<p>Error: {html.escape(case['error_label'])}.</p>")
+    parts.append(_table(headers, rows))
+    return "\n".join(parts)
+
+
+def render_html(report: dict) -> str:
+    cases = report["cases"]
+    claims = _table(
+        ["claim", "source", "statement", "thesis", "thesis hardware", "ours", "verdict", "why"],
+        [[f'<span class="claim" id="claim-{c["id"]}">{c["id"]}</span>', html.escape(c["source"]),
+          html.escape(c["statement"]), _num(c["thesis_value"]) + (f" {c['unit']}" if c["thesis_value"] is not None else ""),
+          html.escape(c["hardware"]), _num(c["ours"]), f'<b class="{c["verdict"].replace(" ", "-")}">{c["verdict"]}</b>',
+          html.escape(c["reason"])] for c in report["claims"]], "claims")
+    machine = report["machine"]
+    versions = ", ".join(f"{k} {v}" for k, v in report["versions"].items())
+    body = "\n".join(_case_section(case) for case in cases.values())
+    not_covered = "".join(f"<li>{html.escape(item)}</li>" for item in report["not_covered"])
+    style = ("body{font-family:sans-serif;max-width:70em;margin:1em auto;padding:0 1em}"
+             "table{border-collapse:collapse;margin:.5em 0;font-size:90%}td,th{border:1px solid #bbb;padding:2px 6px}"
+             ".reproduced{color:#060}.not-reproduced{color:#a00}.not-comparable{color:#666}img{max-width:100%}")
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>tissuerender accuracy report</title>
+<style>{style}</style></head><body>
+<h1>Accuracy report: what accuracy costs in time</h1>
+<p>Command: <code>{html.escape(report['command'])}</code> (sweeps: {report['level']}); created {report['created_utc']};
+{_num(report['wall_s'])} s. Machine: {html.escape(str(machine['processor'] or machine['machine']))}, {machine['cpus']} cpus,
+{machine['numba_threads']} numba thread(s), load average {_num(machine['load_average_at_start'])} at the start.
+Versions: {html.escape(versions)}. Every number below was measured in this run, or is a stored case of the same
+settings and code (marked cached); only the theses' values are typed in, with their source.</p>
+<p>How to read it: each figure plots, per case, the error of every integrator setting against the wall time it
+takes per simulated second (log-log, lower-left is better); circled points joined by the black line are the
+Pareto front (no other setting is both faster and more accurate). See docs/report.md.</p>
+<h2 id="claims">The thesis's claims, side by side</h2>
+{claims}
+{body}
+<h2 id="not-covered">Not covered by this report yet</h2><ul>{not_covered}</ul>
+</body></html>
+"""
