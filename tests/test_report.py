@@ -4,9 +4,8 @@ iterations, the Pareto fronts are non-dominated and sorted, the HTML embeds ever
 claim, report.json round-trips, and a rerun reuses the stored cases.
 
 The suite runs the "tiny" sweeps (``tissuerender.report.cases.SWEEPS``) of the mass–spring–damper and
-the cylinder extension in-process, once per module: about 20 s with the tree's numba cache warm, 87 s cold
-(measured at load 2), of which about 60 s compile the EBM (32 s), XPBD Neo-Hookean (21 s) and force (10 s)
-kernels that the sim tests compile too."""
+the cylinder extension in-process, once per module (most of its cold cost is compiling the EBM, XPBD and
+force kernels that the sim tests compile too)."""
 from __future__ import annotations
 
 import base64
