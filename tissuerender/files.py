@@ -39,9 +39,9 @@ TEMPORARY_NAME = re.compile(r"^\..+\.[a-z0-9_]{8}\.tmp(\.[^.]+)?$")
 
 
 def remove_temporaries(folder: Path) -> list[Path]:
-    """Delete the temporaries a killed writer left in ``folder``; returns them. Only one render may write
-    into a folder at a time (another one's temporaries would go too)."""
-    stale = sorted(p for p in Path(folder).iterdir() if TEMPORARY_NAME.match(p.name) and p.is_file())
+    """Delete the temporaries a killed writer left in ``folder`` and its subfolders (``passes/``); returns
+    them. Only one render may write into a folder at a time (another one's temporaries would go too)."""
+    stale = sorted(p for p in Path(folder).rglob(".*.tmp*") if TEMPORARY_NAME.match(p.name) and p.is_file())
     for path in stale:
         path.unlink(missing_ok=True)
     return stale
@@ -53,8 +53,8 @@ def write_atomic(path: Path, write) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp" + path.suffix, dir=path.parent)
-    os.close(fd)
     try:
+        os.close(fd)
         write(tmp)
         os.replace(tmp, path)
     except BaseException:

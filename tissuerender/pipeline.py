@@ -158,6 +158,11 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
                 _write_cameras(out, scene, done)  # before the manifest records the frame as finished
             record({"complete": False})
             bar.advance()
+    except BaseException:
+        # a signal (SIGINT, SIGTERM) landing between a temporary's creation and its writer's own clean-up
+        # would leave it behind: the folder holds only complete files when the render stops
+        remove_temporaries(out)
+        raise
     finally:
         bar.close()
     final = record({"complete": True, "written": [p.name for p in written],
