@@ -30,51 +30,10 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
-import statistics  # noqa: E402
-import time  # noqa: E402
 
 import numba  # noqa: E402
-import numpy as np  # noqa: E402
 
-from sim.integrators import make_integrator
-from sim.mesh import procedural, select
-from sim.model import Model, PrescribedDisplacement, State
-
-
-def ebm_block(constitutive: str, fibre=None, cells=(5, 4, 4)) -> Model:
-    """A block of 2 cm cells, 6 tets each (default 5 x 4 x 4 cells: 480 tets), bottom fixed, top pressed 5 mm."""
-    mesh = procedural.box(tuple(0.02 * c for c in cells), cells)
-    model = Model.from_mesh(mesh, E=3000.0, nu=0.45, density=1000.0, constitutive=constitutive, fibre=fibre)
-    model.fixed[select.nodes_on_side(mesh.points, 2, "min")] = True
-    top = select.nodes_on_side(mesh.points, 2, "max")
-    model.prescribed.append(PrescribedDisplacement(top, np.array([0.0, 0.0, -0.005]), 0.0, 0.1))
-    return model
-
-
-def cnn_cube(cells=(10, 10, 10)) -> Model:
-    """A 1 cm-cell block (default 10^3 cells: 1,331 nodes, 6,000 tets), sides fixed, a 1 N load on the top
-    centre node (the contact)."""
-    mesh = procedural.box(tuple(0.01 * c for c in cells), cells)
-    model = Model.from_mesh(mesh, E=3500.0, nu=0.45, density=1060.0)
-    for axis in (0, 1):
-        for side in ("min", "max"):
-            model.fixed[select.nodes_on_side(mesh.points, axis, side)] = True
-    model.external_force = np.zeros_like(mesh.points)
-    model.external_force[int(np.argmin(np.linalg.norm(mesh.points - [0.05, 0.05, 0.1], axis=1))), 2] = -1.0
-    return model
-
-
-def rate(name: str, model: Model, settings: dict, dt: float, steps: int, repeats: int):
-    """(median steps per second over ``repeats`` runs of ``steps`` steps, the integrator)."""
-    integrator = make_integrator(name, model, settings)
-    state = integrator.step(State.at_rest(model), dt)  # warm-up: compilation
-    rates = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(steps):
-            state = integrator.step(state, dt)
-        rates.append(steps / (time.perf_counter() - start))
-    return statistics.median(rates), integrator
+from sim.cases.rates import cnn_cube, ebm_block, step_rate
 
 
 def describe(name: str, integrator, settings: dict, dt: float) -> str:
@@ -138,7 +97,7 @@ def main() -> None:
          {"force_model": "linear_fem", "rayleigh_beta": 0.002, **kernel}, 1e-3, None),
     ]
     for key, name, model, settings, dt, thesis in cases:
-        hz, integrator = rate(name, model, settings, dt, steps, repeats)
+        hz, integrator = step_rate(name, model, settings, dt, steps, repeats)
         result[f"{key}_hz"] = round(hz, 1)
         if thesis is not None:
             result[f"{key}_thesis_hz"] = thesis

@@ -12,7 +12,7 @@ convergence check of that reference, and the named ``measures`` the claims (``cl
   over dt (Rayleigh damping so they settle), ``cnn_chainmail`` over its strain limit alpha. The dynamic
   integrators run ``settle_s`` simulated seconds (ramp, then settling) and are measured at the end.
 - ``rates``: steps per second of EBM and the CNN with energy propagation at the thesis's sizes (Zhang
-  Figs. 5.13 and 4.17; the setup of ``benchmarks/zhang_rates.py``).
+  Figs. 5.13 and 4.17; the cases of ``sim.cases.rates``, which ``benchmarks/zhang_rates.py`` times too).
 """
 from __future__ import annotations
 
@@ -21,11 +21,10 @@ import time
 import numpy as np
 
 from sim.cases.msd import MassSpringDamper, simulate
+from sim.cases.rates import cnn_cube, ebm_block, step_rate
 from sim.cases.zhang import zhang_cube_shear, zhang_cylinder
-from sim.integrators import make_integrator
 from sim.integrators.reference import ReferenceIntegrator
-from sim.mesh import procedural, select
-from sim.model import Model, PrescribedDisplacement, State
+from sim.model import State
 from tissuerender.report.measure import mesh_point, observed_order, pareto_front
 
 # the displacement component the thesis plots along the measurement line: u_x on the cylinder (Zhang
@@ -250,51 +249,16 @@ def run_mesh(case_name: str, sweep: dict, tick=lambda: None) -> dict:
 
 # --- step rates at the thesis's sizes -----------------------------------------------------------
 
-def _ebm_block(constitutive: str, cells, fibre=None) -> Model:
-    """``benchmarks/zhang_rates.py``'s block: 2 cm cells, 6 tets each, bottom fixed, top pressed 5 mm."""
-    mesh = procedural.box(tuple(0.02 * c for c in cells), cells)
-    model = Model.from_mesh(mesh, E=3000.0, nu=0.45, density=1000.0, constitutive=constitutive, fibre=fibre)
-    model.fixed[select.nodes_on_side(mesh.points, 2, "min")] = True
-    top = select.nodes_on_side(mesh.points, 2, "max")
-    model.prescribed.append(PrescribedDisplacement(top, np.array([0.0, 0.0, -0.005]), 0.0, 0.1))
-    return model
-
-
-def _cnn_cube(cells) -> Model:
-    """``benchmarks/zhang_rates.py``'s CNN block: 1 cm cells, sides fixed, 1 N on the top centre node."""
-    mesh = procedural.box(tuple(0.01 * c for c in cells), cells)
-    model = Model.from_mesh(mesh, E=3500.0, nu=0.45, density=1060.0)
-    for axis in (0, 1):
-        for side in ("min", "max"):
-            model.fixed[select.nodes_on_side(mesh.points, axis, side)] = True
-    model.external_force = np.zeros_like(mesh.points)
-    top = np.array([0.005 * cells[0], 0.005 * cells[1], 0.01 * cells[2]])
-    model.external_force[int(np.argmin(np.linalg.norm(mesh.points - top, axis=1))), 2] = -1.0
-    return model
-
-
-def _rate(name, model, settings, dt, steps, repeats) -> float:
-    integrator = make_integrator(name, model, settings)
-    state = integrator.step(State.at_rest(model), dt)  # warm-up: compilation or cache load
-    rates = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        for _ in range(steps):
-            state = integrator.step(state, dt)
-        rates.append(steps / (time.perf_counter() - start))
-    return float(np.median(rates))
-
-
 def run_rates(sweep: dict, tick=lambda: None) -> dict:
-    runs = [("ebm_isotropic_504tets", "ebm", _ebm_block("neo_hookean", (7, 4, 3)), {"iterations": 20}, 1e-3),
-            ("ebm_anisotropic_216tets", "ebm", _ebm_block("anisotropic_neo_hookean", (4, 3, 3), [0.0, 0.0, 1.0]),
+    runs = [("ebm_isotropic_504tets", "ebm", ebm_block("neo_hookean", cells=(7, 4, 3)), {"iterations": 20}, 1e-3),
+            ("ebm_anisotropic_216tets", "ebm", ebm_block("anisotropic_neo_hookean", [0.0, 0.0, 1.0], cells=(4, 3, 3)),
              {"iterations": 20}, 1e-3)]
     if sweep["cnn_energy"]:
-        runs.append(("cnn_energy_1452nodes", "cnn", _cnn_cube((10, 10, 11)), {"force_model": "energy", "K": 4.0},
+        runs.append(("cnn_energy_1452nodes", "cnn", cnn_cube(cells=(10, 10, 11)), {"force_model": "energy", "K": 4.0},
                      1.0 / 60.0))
     measures, rows = {}, []
     for key, name, model, settings, dt in runs:
-        hz = _rate(name, model, settings, dt, sweep["steps"], sweep["repeats"])
+        hz, _ = step_rate(name, model, settings, dt, sweep["steps"], sweep["repeats"])
         tick()
         measures[f"{key}_hz"] = hz
         rows.append({"run": key, "integrator": name, "settings": settings, "dt_s": dt, "nodes": int(model.n_nodes),
