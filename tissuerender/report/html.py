@@ -52,11 +52,7 @@ def figure_png(case: dict) -> bytes:
     ax.set_title(case["title"] + (" (cached)" if case.get("cached") else ""), fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", metadata={"Software": None})
-    plt.close(fig)
-    return buffer.getvalue()
+    return _png(fig)
 
 
 def line_png(case: dict) -> bytes:
@@ -82,6 +78,11 @@ def line_png(case: dict) -> bytes:
     ax.set_title(f"{case['title']}: u_{ref['line_component']} along the measurement line", fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
+    return _png(fig)
+
+
+def _png(fig) -> bytes:
+    """The figure as PNG bytes (no software stamp, so the same data give the same bytes); closes it."""
     fig.tight_layout()
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", metadata={"Software": None})
