@@ -53,6 +53,8 @@ def render_hdr(world: World, scene: Scene, plan: Plan, recorder: StageRecorder, 
     if wanted:
         result.passes = groundtruth.ground_truth(objects, groundtruth.rest_positions(world, objects), camera, wanted,
                                                  recorder)
+        if any(name in groundtruth.MOTION_PASSES for name in wanted):
+            result.geometry = groundtruth.frame_geometry(objects, camera)  # for the motion passes (write_geometry)
     return result, positions
 
 
@@ -153,6 +155,9 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
             if "write_passes" in plan:
                 with recorder.run("write_passes"):
                     written += groundtruth.write_passes(out, k, result.passes, _body_ids(world))
+            if "write_geometry" in plan:
+                with recorder.run("write_geometry"):
+                    written += groundtruth.write_geometry(out, k, result.geometry, t)
             done.add(k)
             if "write_passes" in plan:
                 _write_cameras(out, scene, done)  # before the manifest records the frame as finished
@@ -165,6 +170,8 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
         raise
     finally:
         bar.close()
+    if "write_geometry" in plan:
+        written += groundtruth.finish_sequence(out, scene, done, n_frames, recorder)
     final = record({"complete": True, "written": [p.name for p in written],
                     "resumed_skipped": [p.name for p in skipped]})
     ours = {p.name for k in done for p in _frame_files(out, k, plan, world)}
@@ -198,13 +205,13 @@ def _frame_files(out: Path, k: int, plan: Plan, world: World) -> list[Path]:
     wanted = [out / frame_name(k)] if "write_png" in plan else []
     wanted += [out / frame_name(k, "npy")] if "write_hdr" in plan else []
     wanted += [out / f"{body.spec.name}_{k:04d}.vtu" for body in world.bodies] if "write_vtu" in plan else []
-    wanted += [groundtruth.pass_path(out, name, k) for name in plan_passes(plan)]
+    wanted += groundtruth.frame_pass_files(out, k, plan_passes(plan))
     return wanted
 
 
 def plan_passes(plan: Plan) -> list[str]:
     """The ground-truth passes the plan writes."""
-    return [name for name in groundtruth.PASS_NAMES if f"passes.{name}" in plan]
+    return [name for name in groundtruth.ALL_PASS_NAMES if f"passes.{name}" in plan]
 
 
 def _body_ids(world: World) -> list[int]:
@@ -277,7 +284,8 @@ def render_passes(scene: Scene, frame: int = 1, passes=None, seed: int | None = 
     display uint8 RGB (H, W, 3), ``"hdr"`` linear float32 (H, W, 3), each of ``passes`` (default: the scene's
     ``output.passes``, or all of them when it lists none) as written to ``passes/``, ``"labels"`` (the
     ``labels.json`` instances) and ``"camera"`` (``cameras.json`` with this frame's entry)."""
-    wanted = list(passes if passes is not None else (scene.output.passes or groundtruth.PASS_NAMES))
+    listed = [p for p in scene.output.passes if p in groundtruth.PASS_NAMES]  # motion passes need a sequence
+    wanted = list(passes if passes is not None else (listed or groundtruth.PASS_NAMES))
     unknown = [p for p in wanted if p not in groundtruth.PASS_NAMES]
     if unknown:
         raise UserError(f"render_passes: passes: expected names from {', '.join(groundtruth.PASS_NAMES)}, "

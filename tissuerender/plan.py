@@ -125,4 +125,7 @@ def make_plan(scene: Scene) -> Plan:
         decide(f"passes.{name}", name in passes, f"output.passes lists {name}", f"{name} not in output.passes")
     decide("write_passes", bool(passes), "passes/<pass>_NNNN.npy, cameras.json and labels.json",
            "no output.passes")
+    motion = [name for name in ("flow", "scene_flow", "tracks") if name in passes]
+    decide("write_geometry", bool(motion), f"passes/geometry_NNNN.npz: the render geometry {', '.join(motion)} "
+           "are computed from", "no flow, scene_flow or tracks in output.passes")
     return Plan(stages=tuple(run), skipped=tuple(skip))

@@ -12,7 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from tissuerender.errors import UserError
 from tissuerender.files import write_atomic, write_json
+from tissuerender.groundtruth.motion import Geometry
+from tissuerender.renderer.camera import Camera
 
 PASSES_FOLDER = "passes"
 
@@ -66,4 +69,86 @@ def write_labels(out: Path, table: list[dict]) -> Path:
     """``labels.json``: ``{"instances": [{"id", "name", "kind", "class"}, ...]}`` in id order."""
     path = Path(out) / "labels.json"
     write_json(path, {"background_id": 0, "instances": table})
+    return path
+
+
+# ---- motion ground truth (docs/ground-truth.md, "Flow, scene flow and tracks") ----
+
+TOPOLOGY_FILE = "geometry_topology.npz"
+CAMERA_KEYS = ("position", "look_at", "up", "fov_deg", "near", "far", "width", "height")
+
+
+def geometry_path(out: Path, index: int) -> Path:
+    return Path(out) / PASSES_FOLDER / f"geometry_{index:04d}.npz"
+
+
+def _write_npz(path: Path, arrays: dict) -> None:
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **arrays)
+
+    write_atomic(path, write)
+
+
+def write_geometry(out: Path, index: int, geometry, time: float) -> list[Path]:
+    """Frame ``index``'s render geometry (``motion.Geometry``): ``passes/geometry_NNNN.npz`` with ``points``
+    (n, 3) float32 [m], the frame's ``time`` [s] and the camera (``camera_<field>`` of
+    ``tissuerender.renderer.camera.Camera``); the sequence's triangles once in ``passes/geometry_topology.npz``
+    (``triangles`` (t, 3) int32, ``tri_object`` (t,) int32), rewritten only when they differ (another scene
+    rendered into the folder before)."""
+    written = []
+    topology = Path(out) / PASSES_FOLDER / TOPOLOGY_FILE
+    triangles = np.asarray(geometry.triangles, np.int32)
+    tri_object = np.asarray(geometry.tri_object, np.int32)
+    same = False
+    if topology.exists():
+        try:
+            with np.load(topology) as old:
+                same = np.array_equal(old["triangles"], triangles) and np.array_equal(old["tri_object"], tri_object)
+        except (OSError, ValueError, KeyError):
+            same = False
+    if not same:
+        _write_npz(topology, {"triangles": triangles, "tri_object": tri_object})
+        written.append(topology)
+    cam = geometry.camera
+    arrays = {"points": np.asarray(geometry.points, np.float32), "time": np.float64(time)}
+    arrays.update({f"camera_{k}": np.asarray(getattr(cam, k), float) for k in CAMERA_KEYS})
+    path = geometry_path(out, index)
+    _write_npz(path, arrays)
+    return written + [path]
+
+
+def read_geometry(out: Path, index: int):
+    """``motion.Geometry`` of frame ``index`` from ``passes/`` (a UserError naming the file when it is missing
+    or unreadable)."""
+    path = geometry_path(out, index)
+    topology = Path(out) / PASSES_FOLDER / TOPOLOGY_FILE
+    for p in (path, topology):
+        if not p.exists():
+            raise UserError(f"{p}: no such file: frame {index}'s render geometry is written by a render whose "
+                            "output.passes lists flow, scene_flow or tracks")
+    try:
+        with np.load(topology) as top, np.load(path) as g:
+            triangles, tri_object = top["triangles"], top["tri_object"]
+            points = g["points"]
+            values = {k: g[f"camera_{k}"] for k in CAMERA_KEYS}
+    except (OSError, ValueError, KeyError) as e:
+        raise UserError(f"{path}: expected a render geometry file (points, camera_*), found an unreadable one: "
+                        f"{e}") from None
+    camera = Camera(position=tuple(values["position"].tolist()), look_at=tuple(values["look_at"].tolist()),
+                    up=tuple(values["up"].tolist()), fov_deg=float(values["fov_deg"]), near=float(values["near"]),
+                    far=float(values["far"]), width=int(values["width"]), height=int(values["height"]))
+    if triangles.size and int(triangles.max()) >= points.shape[0]:
+        raise UserError(f"{path}: expected {int(triangles.max()) + 1} or more vertices for {topology.name}, "
+                        f"found {points.shape[0]}")
+    return Geometry(points, triangles, tri_object, camera)
+
+
+def write_array(path: Path, array: np.ndarray) -> Path:
+    """One ``.npy`` file (NaN allowed: motion passes are NaN where nothing is seen)."""
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            np.save(f, array)
+
+    write_atomic(path, write)
     return path

@@ -28,7 +28,7 @@ RGB = Annotated[list[Annotated[float, Field(ge=0.0, le=1e6)]], Field(min_length=
 
 INTEGRATORS = (*REGISTRY, "none")
 FORMATS = ("png", "hdr_npy", "vtu")
-PASSES = ("depth", "normal", "segmentation", "material_coords")  # docs/ground-truth.md
+PASSES = ("depth", "normal", "segmentation", "material_coords", "flow", "scene_flow", "tracks")  # docs/ground-truth.md
 AXES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
 
@@ -352,7 +352,12 @@ class Output(Strict):
     passes: Annotated[list[Literal[PASSES]], Field(description=(  # type: ignore[valid-type]
         "ground-truth passes written per frame as passes/<pass>_0001.npy, with cameras.json and labels.json "
         "(docs/ground-truth.md): depth (camera z [m], float32), normal (camera-space unit normals), segmentation "
-        "(int32 instance ids), material_coords (rest position [m] of the tissue point seen)"))] = []
+        "(int32 instance ids), material_coords (rest position [m] of the tissue point seen), flow (optical flow [px] "
+        "and occlusion to the neighbouring frames), scene_flow (3D motion [m] of the point seen), tracks (tracks.npz "
+        "and its TAP-Vid layouts)"))] = []
+    track_points: Annotated[int, Field(ge=1, le=1_000_000, description=(
+        "with passes = [..., \"tracks\"]: number of query points sampled (scene seed) on the tissue seen in "
+        "frame 1"))] = 256
 
 
 class EffectsBase(Strict):

@@ -178,6 +178,8 @@ def _output(scene):
     out = scene.output
     if "jitter" in _set(out) and out.supersampling == 1:
         return "output.jitter", "jitters the supersamples within a pixel, but supersampling = 1; remove it"
+    if "track_points" in _set(out) and "tracks" not in out.passes:
+        return "output.track_points", "sets the number of tracked points, but passes does not list tracks; remove it"
     if not scene.simulated():
         for key, on in (("output.formats", "vtu" in out.formats), ("simulation.write_vtu", scene.simulation.write_vtu)):
             if on:

@@ -1,0 +1,113 @@
+"""Long-range point tracks through the deformation: query points on the tissue seen in frame 1, followed as
+material points (triangle and barycentrics of the render surface) through every frame's geometry.
+
+Query points are ``n`` pixel centres drawn without replacement (``numpy.random.default_rng(seed)``, the
+scene seed) from the pixels of frame 1 that see a simulated body, in the raster of ``motion.carry`` (pixel
+centres, as every pass). Each query's material point is the point that pixel sees; in frame ``k`` it is
+``X_k = sum_i b_i P_k,i`` over the same triangle (``motion`` module docstring, step 1), projected through
+``motion._project``; it is occluded in frame ``k`` by ``motion.occluded_in`` (the flow's occlusion test).
+
+Files (``write_tracks``), in the output folder:
+
+- ``tracks.npz``: ``query_points`` (N, 3) float32 ``[t, y, x]`` (frame index from 0, pixel row and column,
+  OpenCV pixel centres at integers), ``points_2d`` (N, T, 2) float32 pixels ``(x, y)``, ``points_3d`` (N, T, 3)
+  float32 world metres, ``occluded`` (N, T) bool.
+- ``tracks_tapvid.pkl``: the TAP-Vid DAVIS layout, ``{scene name: {"video": (T, H, W, 3) uint8, "points":
+  (N, T, 2) float32, "occluded": (N, T) bool}}`` with points normalised to [0, 1] by TAP-Vid's corner
+  convention, ``((x + 0.5) / W, (y + 0.5) / H)`` (0 the image's left/top edge, 1 its right/bottom edge). The
+  video is the written ``frame_NNNN.png`` frames (black where PNGs are not written).
+- ``tracks_tapvid3d.npz``: the TAPVid-3D layout, ``tracks_XYZ`` (T, N, 3) float32 in each frame's OpenCV camera
+  coordinates [m], ``visibility`` (T, N) bool, ``fx_fy_cx_cy`` (4,) float64 of ``K``, ``queries_xyt`` (N, 3)
+  float32 ``[x, y, t]``; no ``images_jpeg_bytes`` (the frames are the PNGs).
+"""
+from __future__ import annotations
+
+import io
+import pickle
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from tissuerender.files import write_atomic
+from tissuerender.groundtruth.cameras import intrinsics, world_to_camera
+from tissuerender.groundtruth.motion import Geometry, _project, carry, occluded_in, visible_surface
+
+CHUNK = 8  # frames carried per re-raster of frame 1 (each adds 3 float64 attributes per vertex)
+
+
+def sample_queries(first: Geometry, body_objects, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(indices into frame 1's covered pixels (row-major) of the chosen queries (N,), their (row, col) (N, 2)):
+    ``n`` pixels seeing a render object in ``body_objects``, drawn without replacement, in pixel order."""
+    carried = carry(first, [])
+    rows, cols = np.nonzero(carried.covered)
+    tissue = np.flatnonzero(np.isin(carried.obj, list(body_objects)))
+    rng = np.random.default_rng(seed)
+    chosen = np.sort(rng.choice(tissue, size=min(int(n), tissue.size), replace=False)) if tissue.size else tissue
+    return chosen, np.stack([rows[chosen], cols[chosen]], axis=1)
+
+
+def compute_tracks(geometries: list[Geometry], body_objects, n: int, seed: int) -> dict:
+    """Tracks of ``n`` query points sampled on frame 1's visible tissue through ``geometries`` (frames 1..T):
+    the ``tracks.npz`` arrays (module docstring)."""
+    first = geometries[0]
+    chosen, pixels = sample_queries(first, body_objects, n, seed)
+    count, frames = chosen.size, len(geometries)
+    points_2d = np.zeros((count, frames, 2))
+    points_3d = np.zeros((count, frames, 3))
+    occluded = np.zeros((count, frames), bool)
+    for start in range(0, frames, CHUNK):
+        chunk = geometries[start:start + CHUNK]
+        carried = carry(first, [g.points for g in chunk])
+        for j, geom in enumerate(chunk):
+            X = carried.targets[j][chosen]
+            points_3d[:, start + j] = X
+            points_2d[:, start + j] = _project(X, geom.camera)[0]
+            occluded[:, start + j] = occluded_in(X, carried.corners[j][chosen], visible_surface(geom), geom.camera)
+    query = np.concatenate([np.zeros((count, 1)), pixels.astype(float)], axis=1)
+    return {"query_points": query.astype(np.float32), "points_2d": points_2d.astype(np.float32),
+            "points_3d": points_3d.astype(np.float32), "occluded": occluded}
+
+
+def _video(out: Path, frames: int, width: int, height: int) -> np.ndarray:
+    """(T, H, W, 3) uint8 of the written frame PNGs (black for a frame without one)."""
+    video = np.zeros((frames, height, width, 3), np.uint8)
+    for k in range(frames):
+        path = Path(out) / f"frame_{k + 1:04d}.png"
+        if path.exists():
+            with Image.open(path) as im:
+                video[k] = np.asarray(im.convert("RGB"))
+    return video
+
+
+def _write_bytes(path: Path, data: bytes) -> Path:
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            f.write(data)
+
+    write_atomic(path, write)
+    return path
+
+
+def write_tracks(out: Path, tracks: dict, geometries: list[Geometry], name: str) -> list[Path]:
+    """``tracks.npz``, ``tracks_tapvid.pkl`` and ``tracks_tapvid3d.npz`` in ``out`` (module docstring)."""
+    out = Path(out)
+    camera = geometries[0].camera
+    w, h = int(camera.width), int(camera.height)
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, **tracks)
+    written = [_write_bytes(out / "tracks.npz", buffer.getvalue())]
+    normalised = (tracks["points_2d"] + 0.5) / np.array([w, h], np.float32)
+    tapvid = {name: {"video": _video(out, len(geometries), w, h), "points": normalised.astype(np.float32),
+                     "occluded": tracks["occluded"]}}
+    written.append(_write_bytes(out / "tracks_tapvid.pkl", pickle.dumps(tapvid, protocol=4)))
+    xyz = np.stack([tracks["points_3d"][:, k].astype(float) @ world_to_camera(g.camera)[:3, :3].T
+                    + world_to_camera(g.camera)[:3, 3] for k, g in enumerate(geometries)])
+    K = intrinsics(camera)
+    q = tracks["query_points"]
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, tracks_XYZ=xyz.astype(np.float32).reshape(len(geometries), -1, 3),
+                        visibility=~tracks["occluded"].T, fx_fy_cx_cy=np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]),
+                        queries_xyt=np.stack([q[:, 2], q[:, 1], q[:, 0]], axis=1).astype(np.float32))
+    written.append(_write_bytes(out / "tracks_tapvid3d.npz", buffer.getvalue()))
+    return written
