@@ -258,12 +258,12 @@ def test_passes_are_planned_only_when_asked_for_and_unknown_names_are_refused(tm
     names = make_plan(_scene(tmp_path, some)).names
     assert [n for n in names if "passes" in n] == ["passes.raster", "passes.segmentation", "write_passes"]
     bad = copy.deepcopy(PLANE)
-    bad["output"]["passes"] = ["depth", "flow"]
+    bad["output"]["passes"] = ["depth", "disparity"]
     path = tmp_path / "bad.toml"
     path.write_text(tomli_w.dumps(bad))
     assert main(["validate", str(path)]) == 2
     err = capsys.readouterr().err.strip()
-    assert "output.passes" in err and "flow" in err and len(err.splitlines()) == 1
+    assert "output.passes" in err and "disparity" in err and len(err.splitlines()) == 1
 
 
 def test_resume_keeps_frames_with_their_pass_files_and_cameras_json_lists_every_finished_frame(tmp_path):

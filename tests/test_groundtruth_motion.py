@@ -312,3 +312,23 @@ def test_motion_passes_are_planned_with_the_geometry_and_track_points_needs_trac
     data["output"].pop("track_points")
     path.write_text(tomli_w.dumps(data))
     assert "write_geometry" not in make_plan(load_scene(path)).names
+
+
+def test_resume_rerenders_a_frame_without_its_geometry_and_finishes_the_sequence(probe, tmp_path):
+    path = tmp_path / "scene.toml"
+    path.write_text(tomli_w.dumps(PROBE))
+    scene = load_scene(path)
+    out = tmp_path / "out"
+    render(scene, out, progress=False, frames=2)  # an interrupted run: two of three frames
+    assert np.isnan(_pass(out, "flow_forward", 2)).all()  # no third frame yet
+    (out / "passes" / "geometry_0002.npz").unlink()  # frame 2 is no longer complete
+    run = render(scene, out, resume=True, progress=False)
+    assert [p.name for p in run.skipped] == ["frame_0001.png"]
+    assert "geometry_0002.npz" in [p.name for p in run.written]
+    # the same files as an uninterrupted run
+    for name in ("flow_forward", "flow_backward", "occluded_forward", "occluded_backward"):
+        for k in (1, 2, 3):
+            np.testing.assert_array_equal(_pass(out, name, k), _pass(probe, name, k))
+    with np.load(out / "tracks.npz") as resumed, np.load(probe / "tracks.npz") as reference:
+        for name in ("query_points", "points_2d", "points_3d", "occluded"):
+            np.testing.assert_array_equal(resumed[name], reference[name])
