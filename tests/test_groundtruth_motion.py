@@ -332,3 +332,30 @@ def test_resume_rerenders_a_frame_without_its_geometry_and_finishes_the_sequence
     with np.load(out / "tracks.npz") as resumed, np.load(probe / "tracks.npz") as reference:
         for name in ("query_points", "points_2d", "points_3d", "occluded"):
             np.testing.assert_array_equal(resumed[name], reference[name])
+
+
+def test_inverse_depth_gradient_matches_the_plane_seen_through_neighbouring_pixels():
+    from tissuerender.groundtruth.motion import _camera_coords, _inverse_depth_gradient, _project
+    from tissuerender.renderer.camera import Camera
+
+    camera = Camera(position=(0.01, -0.02, 0.1), look_at=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), fov_deg=50.0,
+                    near=0.001, far=10.0, width=64, height=48)
+    corners = np.array([[[-0.02, -0.01, 0.0], [0.03, -0.015, 0.01], [0.0, 0.02, -0.005]]])
+    centre = corners[0].mean(axis=0)
+    (u, v), z = _project(centre, camera)
+    n = np.cross(corners[0, 1] - corners[0, 0], corners[0, 2] - corners[0, 0])
+    K = tissuerender.groundtruth.intrinsics(camera)
+    T = tissuerender.groundtruth.world_to_camera(camera)
+
+    def w_at(du, dv):
+        # 1/z of the plane's point on the ray through pixel (u + du, v + dv)
+        ray_cam = np.linalg.inv(K) @ [u + du, v + dv, 1.0]
+        ray = T[:3, :3].T @ ray_cam
+        C = -T[:3, :3].T @ T[:3, 3]
+        s = n @ (corners[0, 0] - C) / (n @ ray)
+        return 1.0 / _camera_coords(C + s * ray, camera)[2]
+
+    # 1/z is affine in pixels over a plane: central differences are exact up to rounding (about 1e-12 relative)
+    expected = np.hypot(w_at(1, 0) - w_at(-1, 0), w_at(0, 1) - w_at(0, -1)) / 2
+    np.testing.assert_allclose(_inverse_depth_gradient(corners, camera), [expected], rtol=1e-9)
+    assert expected > 0 and abs(1.0 / z - w_at(0, 0)) < 1e-9 / z

@@ -217,9 +217,9 @@ def _motion_arrays(carried: _Carried, j: int, cam_t: Camera, cam_t2: Camera, vis
     return flow, occluded, scene_flow
 
 
-def no_neighbour(carried_or_covered) -> tuple:
-    """(flow, occluded, scene_flow) toward a frame that does not exist: NaN motion, every seen pixel occluded."""
-    covered = getattr(carried_or_covered, "covered", carried_or_covered)
+def no_neighbour(covered: np.ndarray) -> tuple:
+    """(flow, occluded, scene_flow) toward a frame that does not exist, for a frame whose seen pixels are
+    ``covered`` (H, W): NaN motion, every seen pixel occluded."""
     h, w = covered.shape
     return (np.full((h, w, 2), np.nan, np.float32), covered.copy(), np.full((h, w, 3), np.nan, np.float32))
 
@@ -236,7 +236,7 @@ def neighbour_flows(geom: Geometry, previous: Geometry | None, following: Geomet
     j = 0
     for name, other, visible in (("backward", previous, visible_previous), ("forward", following, visible_following)):
         if other is None:
-            arrays = no_neighbour(carried)
+            arrays = no_neighbour(carried.covered)
         else:
             visible = visible_surface(other) if visible is None else visible
             arrays = _motion_arrays(carried, j, geom.camera, other.camera, visible)
