@@ -163,6 +163,8 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
                 _write_cameras(out, scene, done)  # before the manifest records the frame as finished
             record({"complete": False})
             bar.advance()
+        if "write_geometry" in plan:  # flows and tracks need every frame's geometry
+            written += groundtruth.finish_sequence(out, scene, done, n_frames, recorder)
     except BaseException:
         # a signal (SIGINT, SIGTERM) landing between a temporary's creation and its writer's own clean-up
         # would leave it behind: the folder holds only complete files when the render stops
@@ -170,8 +172,6 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
         raise
     finally:
         bar.close()
-    if "write_geometry" in plan:
-        written += groundtruth.finish_sequence(out, scene, done, n_frames, recorder)
     final = record({"complete": True, "written": [p.name for p in written],
                     "resumed_skipped": [p.name for p in skipped]})
     ours = {p.name for k in done for p in _frame_files(out, k, plan, world)}

@@ -23,8 +23,9 @@ for a sequence. The motion of frame ``t``'s pixels to frame ``t2``:
        w(X2) < w_q - (|grad w_A| + |grad w_B|) r - 1e-9 w(X2),
 
    the last term covering float64 rounding of the few dozen operations behind ``w`` (both sides come from the
-   same float32 vertices, so the float32 storage of the geometry cancels). Pixels that see nothing are never
-   occluded; their flows are NaN.
+   same float32 vertices, so the float32 storage of the geometry cancels). A triangle seen exactly edge-on has
+   an infinite gradient, so a point on it is taken as visible. Pixels that see nothing are never occluded;
+   their flows are NaN.
 
 The geometry is stored as float32 (``write_geometry``), so a re-raster may differ from the colour image's
 float64 raster on a pixel whose centre lies within float32 rounding of a silhouette edge.
