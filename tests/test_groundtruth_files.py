@@ -270,3 +270,17 @@ def test_new_formats_are_planned_only_when_asked_and_need_what_they_are_made_fro
         assert main(["validate", str(path)]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and all(w in err for w in words), err
+
+
+def test_resume_renders_again_a_frame_whose_exr_is_missing(rendered, tmp_path):
+    import shutil
+
+    out, run = rendered
+    copy_ = tmp_path / "resumed"
+    shutil.copytree(out, copy_)
+    (copy_ / "frame_0002.exr").unlink()
+    again = tissuerender.render(tissuerender.load_scene(run.manifest["scene"]), copy_, resume=True, progress=False)
+    assert [p.name for p in again.skipped] == ["frame_0001.png"]
+    assert {"frame_0002.exr", "depth_0002.png", "preview.mp4"} <= {p.name for p in again.written}
+    assert again.manifest["formats"] == ["png", "hdr_npy", "exr", "depth_png", "mp4"]
+    assert _same_bits(_read_exr(copy_ / "frame_0002.exr")["depth.Z"], _read_exr(out / "frame_0002.exr")["depth.Z"])

@@ -162,13 +162,6 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
                 _write_cameras(out, scene, done)  # before the manifest records the frame as finished
             record({"complete": False})
             bar.advance()
-        if "write_flow_files" in plan:  # flow the passes wrote after their frames (it needs the next frame)
-            with recorder.run("write_flow_files"):
-                written += gt_formats.complete_from_masters(out, sorted(done), formats)
-        if "write_mp4" in plan and done:
-            with recorder.run("write_mp4"):
-                written.append(gt_formats.write_preview(out, [out / frame_name(k) for k in sorted(done)],
-                                                        scene.output.fps))
     except BaseException:
         # a signal (SIGINT, SIGTERM) landing between a temporary's creation and its writer's own clean-up
         # would leave it behind: the folder holds only complete files when the render stops
@@ -176,6 +169,12 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
         raise
     finally:
         bar.close()
+    if "write_flow_files" in plan:  # flow written after the frames (it needs the next one): .flo, KITTI, EXR layers
+        with recorder.run("write_flow_files"):
+            written += gt_formats.complete_from_masters(out, sorted(done), formats)
+    if "write_mp4" in plan and done:
+        with recorder.run("write_mp4"):
+            written.append(gt_formats.write_preview(out, [out / frame_name(k) for k in sorted(done)], scene.output.fps))
     final = record({"complete": True, "written": [p.name for p in written],
                     "resumed_skipped": [p.name for p in skipped]})
     ours = {p.name for k in done for p in _frame_files(out, k, plan, world)}
