@@ -284,3 +284,29 @@ def test_resume_renders_again_a_frame_whose_exr_is_missing(rendered, tmp_path):
     assert {"frame_0002.exr", "depth_0002.png", "preview.mp4"} <= {p.name for p in again.written}
     assert again.manifest["formats"] == ["png", "hdr_npy", "exr", "depth_png", "mp4"]
     assert _same_bits(_read_exr(copy_ / "frame_0002.exr")["depth.Z"], _read_exr(out / "frame_0002.exr")["depth.Z"])
+
+
+def test_show_draws_flow_and_tracks_hollow_where_occluded(rendered, tmp_path):
+    import shutil
+
+    out = tmp_path / "with_tracks"
+    shutil.copytree(rendered[0], out)
+    flow = np.zeros((48, 64, 2), np.float32)
+    flow[:, :, 0] = np.linspace(-3, 3, 64)[None, :]  # leftwards on the left, rightwards on the right
+    np.save(out / "passes" / "flow_forward_0001.npy", flow)
+    points = np.array([[[20.0, 30.0], [20.0, 30.0]], [[40.0, 12.0], [40.0, 12.0]]])  # (N, T, 2) x, y
+    occluded = np.array([[False, False], [True, True]])
+    np.savez(out / "tracks.npz", query_points=np.zeros((2, 3)), points_2d=points, points_3d=np.zeros((2, 2, 3)),
+             occluded=occluded)
+    sheet, layout, s = contact_sheet(out, 1)
+    x0, y0, x1, y1 = layout["flow_forward"]
+    assert np.array_equal(sheet[y0 + s // 2:y1:s, x0 + s // 2:x1:s], flow_colours(flow))
+    x0, y0, _, _ = layout["tracks (ring: occluded)"]
+    colour = np.asarray(Image.open(out / "frame_0001.png").convert("RGB"))
+
+    def at(x, y, dx=0):  # the sheet pixel at rendered pixel (x, y)'s centre, dx sheet pixels to the right
+        return sheet[y0 + int((y + 0.5) * s), x0 + int((x + 0.5) * s) + dx]
+
+    assert not np.array_equal(at(20, 30), colour[30, 20])  # visible: a filled dot over the pixel
+    assert np.array_equal(at(40, 12), colour[12, 40])  # occluded: the centre shows the frame through the ring
+    assert not np.array_equal(at(40, 12, dx=s), colour[12, 40])  # ... and the ring is drawn around it
