@@ -310,3 +310,17 @@ def test_show_draws_flow_and_tracks_hollow_where_occluded(rendered, tmp_path):
     assert not np.array_equal(at(20, 30), colour[30, 20])  # visible: a filled dot over the pixel
     assert np.array_equal(at(40, 12), colour[12, 40])  # occluded: the centre shows the frame through the ring
     assert not np.array_equal(at(40, 12, dx=s), colour[12, 40])  # ... and the ring is drawn around it
+
+
+def test_exr_without_passes_holds_the_colour_and_a_resume_keeps_it(tmp_path):
+    data = copy.deepcopy(TILTED)
+    data["output"].update(frames=1, formats=["hdr_npy", "exr"], passes=[])
+    path = tmp_path / "colour.toml"
+    path.write_text(tomli_w.dumps(data))
+    scene = tissuerender.load_scene(path)
+    tissuerender.render(scene, tmp_path / "out", progress=False)
+    channels = _read_exr(tmp_path / "out" / "frame_0001.exr")
+    hdr = np.load(tmp_path / "out" / "frame_0001.npy")
+    assert set(channels) == {"R", "G", "B"} and _same_bits(channels["G"], np.ascontiguousarray(hdr[..., 1]))
+    again = tissuerender.render(scene, tmp_path / "out", resume=True, progress=False)
+    assert [p.name for p in again.skipped] == ["frame_0001.png"] and again.written == []

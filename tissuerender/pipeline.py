@@ -154,9 +154,9 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
             if "write_passes" in plan:
                 with recorder.run("write_passes"):
                     written += groundtruth.write_passes(out, k, result.passes, _body_ids(world))
-                written += gt_formats.write_frame_formats(out, k, formats, result.hdr, result.passes,
-                                                          groundtruth.intrinsics(camera_for(scene)),
-                                                          gt_formats.depth_png_scale(scene.camera.far), recorder)
+            written += gt_formats.write_frame_formats(out, k, formats, result.hdr, result.passes,
+                                                      groundtruth.intrinsics(camera_for(scene)),
+                                                      gt_formats.depth_png_scale(scene.camera.far), recorder)
             done.add(k)
             if "write_passes" in plan:
                 _write_cameras(out, scene, done)  # before the manifest records the frame as finished
