@@ -3,8 +3,8 @@ so that errors show before anyone trains on the data (issue 18 item 5; docs/grou
 
 One contact sheet per frame, panels in a grid, each labelled:
 
-- ``colour + segmentation``: the PNG frame with every boundary between instance ids outlined (a pixel whose id
-  differs from its right or lower neighbour), in white;
+- ``colour + outlines``: the PNG frame with every boundary between instance ids outlined (a pixel whose id
+  differs from its right or lower neighbour), in yellow (white would vanish on a specular highlight);
 - ``depth``: matplotlib's ``viridis`` over the frame's depth range, near bright, far dark; black where nothing
   is seen. The map is linear in depth, so its colour index is monotone in depth;
 - ``normal``: ``(n + 1) / 2`` as RGB in camera axes (x right = red, y down = green, z forward = blue);
@@ -123,12 +123,12 @@ def _coords_colours(coords):
 
 
 def outlines(colour: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """``colour`` with white on every pixel whose id differs from its right or lower neighbour's."""
+    """``colour`` with yellow on every pixel whose id differs from its right or lower neighbour's."""
     edge = np.zeros(ids.shape, bool)
     edge[:, :-1] |= ids[:, :-1] != ids[:, 1:]
     edge[:-1, :] |= ids[:-1, :] != ids[1:, :]
     out = colour.copy()
-    out[edge] = 255
+    out[edge] = (255, 255, 0)
     return out
 
 

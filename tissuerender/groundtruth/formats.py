@@ -294,7 +294,7 @@ MOTION_KEYS = ("flow_forward", "flow_backward", "occluded_forward", "occluded_ba
 def complete_from_masters(out: Path, indices, formats) -> list[Path]:
     """For motion passes written as ``passes/<key>_NNNN.npy`` after the frames (flow needs the next frame):
     each frame's ``.flo`` and KITTI PNG, and, with ``exr`` in ``formats``, the frame's EXR rewritten with the
-    motion layers it lacks. Returns the paths written."""
+    motion layers it lacks. Returns the new files (an EXR rewritten in place is not listed again)."""
     written = []
     for k in indices:
         motion = {key: np.load(pass_path(out, key, k)) for key in MOTION_KEYS if pass_path(out, key, k).exists()}
@@ -305,11 +305,11 @@ def complete_from_masters(out: Path, indices, formats) -> list[Path]:
             continue
         written += write_flow_files(out, k, motion)
         if "exr" in formats and exr_path(out, k).exists():
-            written += _add_exr_layers(exr_path(out, k), motion)
+            _add_exr_layers(exr_path(out, k), motion)
     return written
 
 
-def _add_exr_layers(path: Path, passes: dict) -> list[Path]:
+def _add_exr_layers(path: Path, passes: dict) -> bool:
     """Rewrite ``path`` with the layers of ``passes`` it does not have yet (its own channels kept as read)."""
     import OpenEXR
 
@@ -318,7 +318,7 @@ def _add_exr_layers(path: Path, passes: dict) -> list[Path]:
     h, w = channels["R"].shape
     added = {k: v for k, v in exr_channels(np.zeros((h, w, 3), np.float32), passes).items() if k not in "RGB"}
     if set(added) <= set(channels):
-        return []
+        return False
     channels.update(added)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
 
@@ -327,4 +327,4 @@ def _add_exr_layers(path: Path, passes: dict) -> list[Path]:
             f.write(str(tmp))
 
     write_atomic(path, write)
-    return [path]
+    return True
