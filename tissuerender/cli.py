@@ -13,6 +13,7 @@ import threading
 
 from sim.errors import MeshError
 from tissuerender import golden, load_scene, lookdev, make_plan, render
+from tissuerender import show as show_command
 from tissuerender.checks import check_scene
 from tissuerender.errors import UserError
 from tissuerender.report import accuracy as report_accuracy
@@ -67,6 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     golden.add_cli(sub)
     lookdev.add_cli(sub)
     report_accuracy.add_cli(sub)
+    show_command.add_cli(sub)
     return parser
 
 

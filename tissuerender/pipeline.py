@@ -23,6 +23,7 @@ from tissuerender import groundtruth
 from tissuerender.checks import check_scene
 from tissuerender.errors import UserError
 from tissuerender.finite import NonFiniteError, frame_at
+from tissuerender.groundtruth import formats as gt_formats
 from tissuerender.files import output_folder, remove_temporaries, write_atomic, write_json, write_npy, write_png
 from tissuerender.manifest import manifest, read_resumable
 from tissuerender.plan import Plan, make_plan
@@ -98,7 +99,7 @@ class RunResult:
 
 
 # Every name a frame output can have (``frame_name`` and ``_frame_files``), whichever scene wrote it.
-OUTPUT_NAME = re.compile(r"^frame_\d{4,}\.(png|npy)$|^.+_\d{4,}\.vtu$")
+OUTPUT_NAME = re.compile(r"^frame_\d{4,}\.(png|npy|exr)$|^.+_\d{4,}\.vtu$")
 
 
 def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, frames: int | None = None) -> RunResult:
@@ -158,6 +159,9 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
             if "write_geometry" in plan:
                 with recorder.run("write_geometry"):
                     written += groundtruth.write_geometry(out, k, result.geometry, t)
+            written += gt_formats.write_frame_formats(out, k, formats, result.hdr, result.passes,
+                                                      groundtruth.intrinsics(camera_for(scene)),
+                                                      gt_formats.depth_png_scale(scene.camera.far), recorder)
             done.add(k)
             if "write_passes" in plan:
                 _write_cameras(out, scene, done)  # before the manifest records the frame as finished
@@ -172,6 +176,12 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
         raise
     finally:
         bar.close()
+    if "write_flow_files" in plan:  # flow written after the frames (it needs the next one): .flo, KITTI, EXR layers
+        with recorder.run("write_flow_files"):
+            written += gt_formats.complete_from_masters(out, sorted(done), formats)
+    if "write_mp4" in plan and done:
+        with recorder.run("write_mp4"):
+            written.append(gt_formats.write_preview(out, [out / frame_name(k) for k in sorted(done)], scene.output.fps))
     final = record({"complete": True, "written": [p.name for p in written],
                     "resumed_skipped": [p.name for p in skipped]})
     ours = {p.name for k in done for p in _frame_files(out, k, plan, world)}
@@ -181,7 +191,8 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
 
 def output_formats(plan: Plan) -> list[str]:
     """The ``output.formats`` names this render writes (as the plan decided: vtu only when simulating)."""
-    return [name for name, stage in (("png", "write_png"), ("hdr_npy", "write_hdr"), ("vtu", "write_vtu"))
+    return [name for name, stage in (("png", "write_png"), ("hdr_npy", "write_hdr"), ("vtu", "write_vtu"),
+                                     ("exr", "write_exr"), ("depth_png", "write_depth_png"), ("mp4", "write_mp4"))
             if stage in plan]
 
 
@@ -206,6 +217,7 @@ def _frame_files(out: Path, k: int, plan: Plan, world: World) -> list[Path]:
     wanted += [out / frame_name(k, "npy")] if "write_hdr" in plan else []
     wanted += [out / f"{body.spec.name}_{k:04d}.vtu" for body in world.bodies] if "write_vtu" in plan else []
     wanted += groundtruth.frame_pass_files(out, k, plan_passes(plan))
+    wanted += gt_formats.frame_files(out, k, output_formats(plan))
     return wanted
 
 
@@ -223,7 +235,10 @@ def _write_cameras(out: Path, scene: Scene, done: set[int]) -> None:
     """``cameras.json`` with an entry for every finished frame (the camera does not move yet)."""
     camera = camera_for(scene)
     frames = [groundtruth.camera_entry(camera, k, (k - 1) / scene.output.fps) for k in sorted(done)]
-    groundtruth.write_cameras(out, groundtruth.cameras_document(camera, frames))
+    document = groundtruth.cameras_document(camera, frames)
+    if "depth_png" in scene.output.formats:
+        document["depth_png_scale"] = gt_formats.depth_png_scale(scene.camera.far)  # metres per PNG unit
+    groundtruth.write_cameras(out, document)
 
 
 def _surface_positions(world: World, plan: Plan) -> dict[str, np.ndarray]:

@@ -118,6 +118,10 @@ def make_plan(scene: Scene) -> Plan:
         decide(f"postfx.{name}", name in listed, f"effects.{name} ({eff.backend} backend)", "not listed in effects")
     decide("write_png", "png" in scene.output.formats, "output.formats lists png", "png not requested")
     decide("write_hdr", "hdr_npy" in scene.output.formats, "output.formats lists hdr_npy", "hdr_npy not requested")
+    decide("write_exr", "exr" in scene.output.formats, "output.formats lists exr (colour and passes as layers)",
+           "exr not requested")
+    decide("write_depth_png", "depth_png" in scene.output.formats, "output.formats lists depth_png",
+           "depth_png not requested")
     passes = scene.output.passes
     # ground truth (docs/ground-truth.md): one raster at the output resolution (pixel centres) feeds every pass
     decide("passes.raster", bool(passes), f"output.passes lists {', '.join(passes)}", "no output.passes")
@@ -128,4 +132,8 @@ def make_plan(scene: Scene) -> Plan:
     motion = [name for name in ("flow", "scene_flow", "tracks") if name in passes]
     decide("write_geometry", bool(motion), f"passes/geometry_NNNN.npz: the render geometry {', '.join(motion)} "
            "are computed from", "no flow, scene_flow or tracks in output.passes")
+    decide("write_flow_files", "flow" in passes, "output.passes lists flow: also as .flo and KITTI PNG",
+           "flow not in output.passes")
+    decide("write_mp4", "mp4" in scene.output.formats, "output.formats lists mp4 (preview.mp4 from the PNGs)",
+           "mp4 not requested")
     return Plan(stages=tuple(run), skipped=tuple(skip))

@@ -27,7 +27,7 @@ Vec2Pos = Annotated[list[Annotated[float, Field(gt=0.0)]], Field(min_length=2, m
 RGB = Annotated[list[Annotated[float, Field(ge=0.0, le=1e6)]], Field(min_length=3, max_length=3)]
 
 INTEGRATORS = (*REGISTRY, "none")
-FORMATS = ("png", "hdr_npy", "vtu")
+FORMATS = ("png", "hdr_npy", "vtu", "exr", "depth_png", "mp4")  # the last three: docs/ground-truth.md
 PASSES = ("depth", "normal", "segmentation", "material_coords", "flow", "scene_flow", "tracks")  # docs/ground-truth.md
 AXES = ("x_min", "x_max", "y_min", "y_max", "z_min", "z_max")
 
@@ -344,7 +344,8 @@ class Output(Strict):
         "frames per second (frame k shows time (k-1)/fps)"))] = 24.0
     formats: Annotated[list[Literal[FORMATS]], Field(min_length=1, description=(  # type: ignore[valid-type]
         "frame_0001.png..., float32 HDR radiance frame_0001.npy, simulation state NAME_0001.vtu (needs a "
-        "simulated scene)"))] = ["png"]
+        "simulated scene), multi-layer OpenEXR frame_0001.exr (colour and passes), 16-bit depth PNG "
+        "passes/depth_0001.png (needs the depth pass), preview.mp4 video (needs png)"))] = ["png"]
     supersampling: Annotated[int, Field(ge=1, le=8, description="N x N samples per pixel, box-filtered")] = 1
     jitter: bool = Field(True, description=(
         "with supersampling > 1, each sample at a seeded random point of its own cell (stratified jitter); false: "

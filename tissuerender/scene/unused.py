@@ -180,6 +180,10 @@ def _output(scene):
         return "output.jitter", "jitters the supersamples within a pixel, but supersampling = 1; remove it"
     if "track_points" in _set(out) and "tracks" not in out.passes:
         return "output.track_points", "sets the number of tracked points, but passes does not list tracks; remove it"
+    if "mp4" in out.formats and "png" not in out.formats:
+        return "output.formats", "mp4 is made from the PNG frames at the end of the sequence: add \"png\""
+    if "depth_png" in out.formats and "depth" not in out.passes:
+        return "output.formats", "depth_png writes the depth pass as 16-bit PNG: add \"depth\" to output.passes"
     if not scene.simulated():
         for key, on in (("output.formats", "vtu" in out.formats), ("simulation.write_vtu", scene.simulation.write_vtu)):
             if on:
