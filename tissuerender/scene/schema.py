@@ -238,9 +238,8 @@ class Camera(Strict):
         "(table below; instead of position and look_at)"))
     lens: CameraLens | None = Field(None, description=(
         "wide-angle lens distortion and vignetting applied to colour and every pass (table below; "
-        "docs/ground-truth.md, \"Lens\"); none: a pinhole"))
-    fov_deg: Annotated[float, Field(gt=1.0, lt=179.0, description=(
-        "horizontal field of view [deg] (with a lens: the angle the distorted image's width spans)"))] = 70.0
+        "docs/ground-truth.md, \"Lens\"); fov_deg is then the angle the distorted image's width spans; none: a pinhole"))
+    fov_deg: Annotated[float, Field(gt=1.0, lt=179.0, description="horizontal field of view [deg]")] = 70.0
     near: Annotated[float, Field(gt=0.0, le=1e3, description="near clip distance [m]")] = 0.005
     far: Annotated[float, Field(gt=0.0, le=1e5, description="far clip distance [m] (> near)")] = 10.0
     focus_distance: Annotated[float, Field(gt=0.0, le=1e5)] | None = Field(None, description=(
