@@ -104,6 +104,8 @@ def test_distort_and_project_follow_the_opencv_fisheye_formula(tmp_path):
                                       lens.K[1, 1] * X[:, 1] / X[:, 2] + lens.K[1, 2]])
     assert np.allclose(lens.distort(undistorted_px), expected, rtol=F64, atol=F64 * 100)
     assert np.array_equal(lens.distort_pixels(undistorted_px), lens.distort(undistorted_px))
+    assert np.array_equal(lens_module.distort_pixels(undistorted_px, lens), lens.distort(undistorted_px))
+    assert np.array_equal(lens_module.distort_pixels(undistorted_px, None), undistorted_px)  # no lens: a pinhole
     assert np.array_equal(lens.distort(lens.K[:2, 2]), lens.K[:2, 2])  # the principal point stays
 
 
@@ -277,12 +279,12 @@ def test_a_path_of_one_keyframe_renders_bit_identically_to_the_fixed_camera(tmp_
                {"t": 0.1, "position": [0.0, 0.0, 0.2], "look_at": [0.0, 0.0, 0.0]}]}, "camera", "increase strictly"),
     ({"fov_deg": 150.0, "lens": {"coefficients": [-0.3, 0.0, 0.0, 0.0]}}, "camera.lens", "stops increasing"),
     ({"fov_deg": 170.0, "lens": {"coefficients": [0.0, 0.0, 0.0, 0.0]}}, "camera.lens", "pinhole"),
+    ({"path": [{"t": 0.0, "position": [0.0, 0.0, 0.1], "look_at": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0]}]},
+     "camera.up", "no effect"),
 ])
 def test_a_camera_the_model_cannot_follow_is_refused_with_its_key(tmp_path, capsys, change, key, words):
     data = copy.deepcopy(MOVING)
     data["camera"].update(change)
-    if "path" in change and "position" not in change:
-        data["camera"]["up"] = [0.0, 1.0, 0.0]
     path = tmp_path / "bad.toml"
     path.write_text(tomli_w.dumps(data))
     assert main(["validate", str(path)]) == 2

@@ -145,6 +145,12 @@ def check_lens(fov_deg: float, width: int, height: int, k) -> float:
     return float(solve_theta(np.array([r_corner]), k, float(grid[np.argmax(seen)]))[0])
 
 
+def distort_pixels(uv: np.ndarray, lens: "FisheyeLens | None") -> np.ndarray:
+    """Pixel positions ``uv`` (..., 2) computed through ``K`` as a pinhole (flow end points, point tracks) -> where
+    the frame shows them: ``lens.distort_pixels(uv)``, or ``uv`` itself without a lens (None)."""
+    return np.asarray(uv, float) if lens is None else lens.distort_pixels(uv)
+
+
 @dataclass(frozen=True)
 class FisheyeLens:
     """A Kannala-Brandt lens on a ``width`` x ``height`` image: distorted intrinsics ``K``, coefficients

@@ -125,6 +125,9 @@ def _tools(scene):
 
 
 def _camera(scene):
+    cam = scene.camera
+    if cam.path and "up" in _set(cam) and all(k.up is not None for k in cam.path):
+        return "camera.up", "every camera.path keyframe gives its own 'up', so it has no effect; remove it"
     given = _set(scene.camera) & {"focus_distance", "aperture"}
     if not given:
         return None
