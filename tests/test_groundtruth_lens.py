@@ -281,10 +281,15 @@ def test_a_path_of_one_keyframe_renders_bit_identically_to_the_fixed_camera(tmp_
     ({"fov_deg": 170.0, "lens": {"coefficients": [0.0, 0.0, 0.0, 0.0]}}, "camera.lens", "pinhole"),
     ({"path": [{"t": 0.0, "position": [0.0, 0.0, 0.1], "look_at": [0.0, 0.0, 0.0], "up": [0.0, 1.0, 0.0]}]},
      "camera.up", "no effect"),
+    # frame 2 (t = 1/24 s) is half way: up (1, 0, 0) -> (-1, 0, 0) passes through zero
+    ({"up": None, "path": [{"t": 0.0, "position": [0.1, 0.2, 0.15], "look_at": [0.1, 0.2, 0.0], "up": [1.0, 0.0, 0.0]},
+                           {"t": 2.0 / 24.0, "position": [0.1, 0.2, 0.15], "look_at": [0.1, 0.2, 0.0],
+                            "up": [-1.0, 0.0, 0.0]}]}, "camera.path", "at t = 0.0416667 s"),
 ])
 def test_a_camera_the_model_cannot_follow_is_refused_with_its_key(tmp_path, capsys, change, key, words):
     data = copy.deepcopy(MOVING)
     data["camera"].update(change)
+    data["camera"] = {key: value for key, value in data["camera"].items() if value is not None}
     path = tmp_path / "bad.toml"
     path.write_text(tomli_w.dumps(data))
     assert main(["validate", str(path)]) == 2

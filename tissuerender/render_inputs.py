@@ -51,6 +51,31 @@ def camera_for(scene: Scene, width: int | None = None, height: int | None = None
                   focus_distance=c.focus_distance, aperture=c.aperture)
 
 
+def check_camera(scene: Scene) -> None:
+    """What a render needs of the camera, before its first frame: the lens can image the field of view, and
+    every frame's pose along a path has an orientation (a scene error naming the key otherwise)."""
+    lens_for(scene, camera_for(scene))
+    c = scene.camera
+    if not c.path:
+        return
+    times = np.arange(scene.output.frames, dtype=np.float64) / scene.output.fps
+    keys = np.array([k.t for k in c.path], dtype=np.float64)
+
+    def along(values) -> np.ndarray:
+        values = np.asarray(values, dtype=np.float64)
+        return np.stack([np.interp(times, keys, values[:, axis]) for axis in range(3)], axis=1)
+
+    position, look_at = along([k.position for k in c.path]), along([k.look_at for k in c.path])
+    up = along([k.up if k.up is not None else c.up for k in c.path])
+    view = look_at - position
+    cross = np.cross(view, up)
+    # the thresholds of camera_schema.degenerate_view, which camera_pose applies to the first bad frame
+    bad = (np.einsum("ij,ij->i", view, view) < 1e-18) | (
+        np.einsum("ij,ij->i", cross, cross) < 1e-18 * np.maximum(np.einsum("ij,ij->i", up, up), 1e-300))
+    if bad.any():
+        camera_pose(scene, float(times[np.argmax(bad)]))
+
+
 def lens_for(scene: Scene, camera: Camera) -> FisheyeLens | None:
     """The laparoscope's lens for ``camera``'s size and field of view (``[camera.lens]``), None for a pinhole;
     a scene error naming ``camera.lens`` when the model cannot image that field."""
