@@ -11,7 +11,9 @@ pixel centres at integer coordinates) the same map is ``u = fx x / z + cx``, ``v
     fx = fy = W / (2 tan_x),    cx = W / 2 - 1/2,    cy = H / 2 - 1/2,
 
 and ``(x, y, z) = (xv, -yv, zv)``: the rows of the world-to-camera rotation are the camera's right, down and
-forward axes.
+forward axes. With ``[camera.lens]`` the frame is a fisheye image: ``cameras.json`` then gives the distorted
+camera's K and its Kannala-Brandt coefficients (``tissuerender.groundtruth.lens``). Along a camera path each
+frame's entry holds that frame's pose.
 """
 from __future__ import annotations
 
