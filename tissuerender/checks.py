@@ -18,7 +18,7 @@ import postfx
 from postfx.gl.context import Context
 from tissuerender.errors import UserError
 from tissuerender.plan import Plan, make_plan
-from tissuerender.render_inputs import camera_for, light_for, settings_for
+from tissuerender.render_inputs import check_camera, light_for, settings_for
 from tissuerender.renderer.frame import check_light
 from tissuerender.scene import Scene
 from tissuerender.stages import StageRecorder, recorder_or_new
@@ -40,7 +40,7 @@ def check_scene(scene: Scene, recorder: StageRecorder | None = None) -> CheckedS
     recorder = recorder_or_new(recorder)
     plan = make_plan(scene)
     world = build_world(scene, plan, recorder)
-    camera_for(scene)
+    check_camera(scene)
     settings = settings_for(scene, scene.seed)
     try:
         check_light(light_for(scene), settings)

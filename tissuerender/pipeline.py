@@ -28,7 +28,7 @@ from tissuerender.files import output_folder, remove_temporaries, write_atomic, 
 from tissuerender.manifest import manifest, read_resumable
 from tissuerender.plan import Plan, make_plan
 from tissuerender.renderer import render_frame
-from tissuerender.render_inputs import camera_for, light_for, render_objects, settings_for
+from tissuerender.render_inputs import camera_for, lens_for, light_for, render_objects, settings_for
 from tissuerender.scene import Scene
 from tissuerender.stages import StageRecorder, recorder_or_new
 from tissuerender.world import World, advance
@@ -43,19 +43,24 @@ def render_hdr(world: World, scene: Scene, plan: Plan, recorder: StageRecorder, 
     """Raster and shade one frame: (FrameResult, surface positions by body name); ``result.passes`` holds the
     ground-truth ``passes`` (default: the scene's ``output.passes``)."""
     objects, positions = render_objects(world, scene, t, plan, recorder, previous)
-    camera = camera_for(scene, width, height)
+    camera = camera_for(scene, width, height, t)
+    lens = lens_for(scene, camera)  # None: a pinhole; else the frame is rendered by a wider pinhole and remapped
+    view = camera if lens is None else lens.pinhole
     try:
-        result = render_frame(objects, camera, light_for(scene), settings_for(scene, seed), recorder=recorder)
+        result = render_frame(objects, view, light_for(scene), settings_for(scene, seed), recorder=recorder)
     except NotImplementedError as e:
         raise UserError(f"{scene.path}: [effects] asks for something this renderer cannot do: {e}") from None
     except NonFiniteError as e:
         raise e.located(scene.path, frame_at(t, scene.output.fps), [o.name for o in objects]) from None
     wanted = scene.output.passes if passes is None else passes
     if wanted:
-        result.passes = groundtruth.ground_truth(objects, groundtruth.rest_positions(world, objects), camera, wanted,
+        result.passes = groundtruth.ground_truth(objects, groundtruth.rest_positions(world, objects), view, wanted,
                                                  recorder)
         if any(name in groundtruth.MOTION_PASSES for name in wanted):
             result.geometry = groundtruth.frame_geometry(objects, camera)  # for the motion passes (write_geometry)
+    if lens is not None:
+        with recorder.run("lens"):  # colour bilinear (then vignetting, before the post-effects), passes nearest
+            lens.apply(result)
     return result, positions
 
 
@@ -232,10 +237,11 @@ def _body_ids(world: World) -> list[int]:
 
 
 def _write_cameras(out: Path, scene: Scene, done: set[int]) -> None:
-    """``cameras.json`` with an entry for every finished frame (the camera does not move yet)."""
+    """``cameras.json`` with an entry for every finished frame, each with that frame's pose."""
     camera = camera_for(scene)
-    frames = [groundtruth.camera_entry(camera, k, (k - 1) / scene.output.fps) for k in sorted(done)]
-    document = groundtruth.cameras_document(camera, frames)
+    times = {k: (k - 1) / scene.output.fps for k in sorted(done)}
+    frames = [groundtruth.camera_entry(camera_for(scene, t=t), k, t) for k, t in times.items()]
+    document = groundtruth.cameras_document(camera, frames, lens_for(scene, camera))
     if "depth_png" in scene.output.formats:
         document["depth_png_scale"] = gt_formats.depth_png_scale(scene.camera.far)  # metres per PNG unit
     groundtruth.write_cameras(out, document)
@@ -307,11 +313,12 @@ def render_passes(scene: Scene, frame: int = 1, passes=None, seed: int | None = 
                         f"found {unknown[0]!r}")
     colour, result = render_frame_arrays(scene, seed, frame, resolution, passes=wanted)
     w, h = resolution if resolution is not None else (None, None)
-    camera = camera_for(scene, w, h)
-    entry = groundtruth.camera_entry(camera, frame, (frame - 1) / scene.output.fps)
+    t = (frame - 1) / scene.output.fps
+    camera = camera_for(scene, w, h, t)
+    entry = groundtruth.camera_entry(camera, frame, t)
     return {"colour": colour, "hdr": result.hdr, **result.passes,
             "labels": groundtruth.labels(scene),
-            "camera": groundtruth.cameras_document(camera, [entry])}
+            "camera": groundtruth.cameras_document(camera, [entry], lens_for(scene, camera))}
 
 
 class _progress:

@@ -113,6 +113,8 @@ def make_plan(scene: Scene) -> Plan:
     decide("mucus_reflection", eff.mucus_reflection, "effects.mucus_reflection (SH environment term)",
            "effects.mucus_reflection = false")
     decide("shade", True, f"area light, {scene.light.samples} samples ({scene.light.sampling})", "")
+    decide("lens", scene.camera.lens is not None, "camera.lens: a wider pinhole remapped to the distorted image",
+           "no camera.lens (a pinhole)")
     listed = [n for n, _ in scene.effect_chain()]  # in the order they run
     for name in listed + [n for n in postfx.EFFECTS if n not in listed]:
         decide(f"postfx.{name}", name in listed, f"effects.{name} ({eff.backend} backend)", "not listed in effects")

@@ -2,23 +2,102 @@
 the area light, the render settings and the triangle meshes (deformed bodies, static surfaces, tools)."""
 from __future__ import annotations
 
+import functools
+from dataclasses import replace
+
 import numpy as np
 
 import materials
 from materials.optics import with_overrides
 from sim.mesh.surface import vertex_normals
+from tissuerender.errors import SceneError
+from tissuerender.groundtruth.lens import FisheyeLens, fisheye_lens
 from tissuerender.plan import Plan
 from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings
 from tissuerender.scene import Scene
+from tissuerender.scene.camera_schema import degenerate_view
 from tissuerender.stages import StageRecorder
 from tissuerender.world import World, make_probe
 
 
-def camera_for(scene: Scene, width: int | None = None, height: int | None = None) -> Camera:
+def camera_pose(scene: Scene, t: float = 0.0) -> tuple[tuple, tuple, tuple]:
+    """(position, look_at, up) of the laparoscope at time ``t`` [s]: the scene's fixed pose, or its ``path``
+    interpolated linearly in time in each of position, look_at and up, held before the first keyframe and
+    after the last (docs/ground-truth.md, "Moving camera")."""
     c = scene.camera
-    return Camera(position=c.position, look_at=c.look_at, up=c.up, fov_deg=c.fov_deg, near=c.near, far=c.far,
+    if not c.path:
+        return tuple(c.position), tuple(c.look_at), tuple(c.up)
+    times = np.array([k.t for k in c.path], dtype=np.float64)
+
+    def along(values) -> tuple:
+        values = np.asarray(values, dtype=np.float64)
+        return tuple(float(np.interp(t, times, values[:, axis])) for axis in range(3))
+
+    pose = (along([k.position for k in c.path]), along([k.look_at for k in c.path]),
+            along([k.up if k.up is not None else c.up for k in c.path]))
+    problem = degenerate_view(*pose)
+    if problem:
+        raise SceneError(scene.path, "camera.path", f"at t = {t:g} s the interpolated pose has no orientation: "
+                         f"{problem}; add a keyframe there")
+    return pose
+
+
+def camera_for(scene: Scene, width: int | None = None, height: int | None = None, t: float | None = None) -> Camera:
+    """The camera at time ``t`` [s] (default 0: the first frame's) at the given size (default the scene's)."""
+    c = scene.camera
+    position, look_at, up = camera_pose(scene, 0.0 if t is None else t)
+    return Camera(position=position, look_at=look_at, up=up, fov_deg=c.fov_deg, near=c.near, far=c.far,
                   width=width or scene.width, height=height or scene.height,
                   focus_distance=c.focus_distance, aperture=c.aperture)
+
+
+def check_camera(scene: Scene) -> None:
+    """What a render needs of the camera, before its first frame: the lens can image the field of view, and
+    every frame's pose along a path has an orientation (a scene error naming the key otherwise)."""
+    lens_for(scene, camera_for(scene))
+    c = scene.camera
+    if not c.path:
+        return
+    times = np.arange(scene.output.frames, dtype=np.float64) / scene.output.fps
+    keys = np.array([k.t for k in c.path], dtype=np.float64)
+
+    def along(values) -> np.ndarray:
+        values = np.asarray(values, dtype=np.float64)
+        return np.stack([np.interp(times, keys, values[:, axis]) for axis in range(3)], axis=1)
+
+    position, look_at = along([k.position for k in c.path]), along([k.look_at for k in c.path])
+    up = along([k.up if k.up is not None else c.up for k in c.path])
+    view = look_at - position
+    cross = np.cross(view, up)
+    # the thresholds of camera_schema.degenerate_view, which camera_pose applies to the first bad frame
+    bad = (np.einsum("ij,ij->i", view, view) < 1e-18) | (
+        np.einsum("ij,ij->i", cross, cross) < 1e-18 * np.maximum(np.einsum("ij,ij->i", up, up), 1e-300))
+    if bad.any():
+        camera_pose(scene, float(times[np.argmax(bad)]))
+
+
+def lens_for(scene: Scene, camera: Camera) -> FisheyeLens | None:
+    """The laparoscope's lens for ``camera``'s size and field of view (``[camera.lens]``), None for a pinhole;
+    a scene error naming ``camera.lens`` when the model cannot image that field."""
+    spec = scene.camera.lens
+    if spec is None:
+        return None
+    try:
+        lens = _lens_at_origin(float(camera.fov_deg), int(camera.width), int(camera.height),
+                               tuple(spec.coefficients), float(spec.vignetting))
+    except ValueError as e:
+        raise SceneError(scene.path, "camera.lens", f"{e} (fov_deg = {camera.fov_deg:g}, "
+                         f"image {camera.width} x {camera.height}, coefficients {list(spec.coefficients)})") from None
+    # the remap depends on the field, size and coefficients only: built once, posed per frame
+    pinhole = replace(camera, width=lens.pinhole.width, height=lens.pinhole.height, fov_deg=lens.pinhole.fov_deg)
+    return replace(lens, pinhole=pinhole)
+
+
+@functools.lru_cache(maxsize=8)
+def _lens_at_origin(fov_deg: float, width: int, height: int, coefficients: tuple, vignetting: float) -> FisheyeLens:
+    camera = Camera(position=(0.0, 0.0, 0.0), look_at=(0.0, 1.0, 0.0), up=(0.0, 0.0, 1.0), fov_deg=fov_deg,
+                    near=1.0, far=2.0, width=width, height=height)
+    return fisheye_lens(camera, coefficients, vignetting)
 
 
 def light_for(scene: Scene) -> AreaLight:

@@ -11,7 +11,9 @@ pixel centres at integer coordinates) the same map is ``u = fx x / z + cx``, ``v
     fx = fy = W / (2 tan_x),    cx = W / 2 - 1/2,    cy = H / 2 - 1/2,
 
 and ``(x, y, z) = (xv, -yv, zv)``: the rows of the world-to-camera rotation are the camera's right, down and
-forward axes.
+forward axes. With ``[camera.lens]`` the frame is a fisheye image: ``cameras.json`` then gives the distorted
+camera's K and its Kannala-Brandt coefficients (``tissuerender.groundtruth.lens``). Along a camera path each
+frame's entry holds that frame's pose.
 """
 from __future__ import annotations
 
@@ -23,6 +25,14 @@ CONVENTIONS = ("OpenCV pinhole camera: camera axes x right, y down, z forward; w
                "metres to camera metres (X_cam = R X_world + t); K maps camera coordinates to pixels with the "
                "centre of pixel (column u, row v) at integer (u, v) and (0, 0) the top-left pixel; depth is camera "
                "z in metres (inf where nothing is seen); no lens distortion is applied to colour or passes.")
+LENS_CONVENTIONS = (
+    "OpenCV fisheye (Kannala-Brandt) camera: camera axes x right, y down, z forward; world_to_camera maps world "
+    "metres to camera metres (X_cam = R X_world + t); a camera point (x, y, z) has a = x/z, b = y/z, "
+    "r = sqrt(a^2 + b^2), theta = atan(r), theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8) "
+    "with distortion.coefficients = [k1, k2, k3, k4], and lands at pixel (u, v, 1) = K (theta_d / r a, "
+    "theta_d / r b, 1) (K applies after the distortion, as in cv2.fisheye), the centre of pixel (column u, row v) "
+    "at integer (u, v) and (0, 0) the top-left pixel; colour and every pass are distorted images (passes "
+    "resampled at the nearest pinhole sample); depth is camera z in metres (inf where nothing is seen).")
 
 
 def intrinsics(camera: Camera) -> np.ndarray:
@@ -47,10 +57,16 @@ def camera_entry(camera: Camera, index: int, time: float) -> dict:
     return {"index": int(index), "time": float(time), "world_to_camera": world_to_camera(camera).tolist()}
 
 
-def cameras_document(camera: Camera, frames: list[dict]) -> dict:
-    """``cameras.json``: image size, K, distortion (none yet) and one entry per frame written so far."""
-    return {"width": int(camera.width), "height": int(camera.height), "K": intrinsics(camera).tolist(),
-            "distortion": {"model": "none", "coefficients": []}, "conventions": CONVENTIONS, "frames": frames}
+def cameras_document(camera: Camera, frames: list[dict], lens=None) -> dict:
+    """``cameras.json``: image size, K, distortion and one entry per frame written so far. With a ``lens``
+    (``tissuerender.groundtruth.lens.FisheyeLens``) K is the distorted camera's and ``distortion`` its model."""
+    if lens is None:
+        K, distortion, conventions = intrinsics(camera), {"model": "none", "coefficients": []}, CONVENTIONS
+    else:
+        K, distortion = lens.K, {"model": "kannala_brandt", "coefficients": [float(c) for c in lens.k]}
+        conventions = LENS_CONVENTIONS
+    return {"width": int(camera.width), "height": int(camera.height), "K": np.asarray(K).tolist(),
+            "distortion": distortion, "conventions": conventions, "frames": frames}
 
 
 def labels(scene) -> list[dict]:

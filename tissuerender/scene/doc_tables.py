@@ -66,6 +66,8 @@ SECTIONS: tuple[Section, ...] = (
     Section("tools", schema.Tool),
     Section("tools.keyframes", schema.Keyframe),
     Section("camera", schema.Camera),
+    Section("camera.path", schema.CameraKeyframe),
+    Section("camera.lens", schema.CameraLens),
     Section("light", schema.Light),
     Section("light.importance", schema.ImportanceStroke),
     Section("effects", schema.Effects),

@@ -20,6 +20,7 @@ from sim.integrators.explicit import ExplicitSceneSettings
 from sim.integrators.reference import ReferenceSceneSettings
 from sim.integrators.xpbd.settings import XPBDSceneSettings
 
+from tissuerender.scene.camera_schema import CameraKeyframe, CameraLens, check_path, degenerate_view
 from tissuerender.scene.shapes import SHAPES
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -227,9 +228,17 @@ class Tool(Strict):
 
 
 class Camera(Strict):
-    position: Annotated[Vec3, Field(description="laparoscope tip [m]")]
-    look_at: Annotated[Vec3, Field(description="point in the centre of the view [m] (not equal to position)")]
-    up: Vec3 = Field([0.0, 0.0, 1.0], description="up direction (not parallel to the view)")
+    position: Vec3 | None = Field(None, description="laparoscope tip [m] (required unless path is given)")
+    look_at: Vec3 | None = Field(None, description=(
+        "point in the centre of the view [m] (not equal to position; required unless path is given)"))
+    up: Vec3 = Field([0.0, 0.0, 1.0], description=(
+        "up direction (not parallel to the view); with a path, the default of each keyframe's up"))
+    path: Annotated[list[CameraKeyframe], Field(max_length=10000)] = Field([], description=(
+        "a moving laparoscope: keyframed poses, times strictly increasing, linear in position, look_at and up "
+        "(table below; instead of position and look_at)"))
+    lens: CameraLens | None = Field(None, description=(
+        "wide-angle lens distortion and vignetting applied to colour and every pass (table below; "
+        "docs/ground-truth.md, \"Lens\"); fov_deg is then the angle the distorted image's width spans; none: a pinhole"))
     fov_deg: Annotated[float, Field(gt=1.0, lt=179.0, description="horizontal field of view [deg]")] = 70.0
     near: Annotated[float, Field(gt=0.0, le=1e3, description="near clip distance [m]")] = 0.005
     far: Annotated[float, Field(gt=0.0, le=1e5, description="far clip distance [m] (> near)")] = 10.0
@@ -243,13 +252,16 @@ class Camera(Strict):
     def _frame(self):
         if self.far <= self.near:
             raise ValueError(f"far ({self.far}) must exceed near ({self.near})")
-        d = [a - b for a, b in zip(self.look_at, self.position)]
-        if sum(c * c for c in d) < 1e-18:
-            raise ValueError("look_at must differ from position")
-        cross = [d[1] * self.up[2] - d[2] * self.up[1], d[2] * self.up[0] - d[0] * self.up[2],
-                 d[0] * self.up[1] - d[1] * self.up[0]]
-        if sum(c * c for c in cross) < 1e-18 * max(sum(u * u for u in self.up), 1e-300):
-            raise ValueError(f"up {self.up} must not be parallel to the view direction")
+        if self.path:
+            if self.position is not None or self.look_at is not None:
+                raise ValueError("with 'path' the pose comes from its keyframes: remove 'position' and 'look_at'")
+            check_path(self.path, self.up)
+            return self
+        if self.position is None or self.look_at is None:
+            raise ValueError("give 'position' and 'look_at' (or a keyframed 'path')")
+        problem = degenerate_view(self.position, self.look_at, self.up)
+        if problem:
+            raise ValueError(problem)
         return self
 
 
