@@ -164,9 +164,11 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
             if "write_geometry" in plan:
                 with recorder.run("write_geometry"):
                     written += groundtruth.write_geometry(out, k, result.geometry, t)
+            camera = camera_for(scene, t=t)
+            lens = lens_for(scene, camera)
             written += gt_formats.write_frame_formats(out, k, formats, result.hdr, result.passes,
-                                                      groundtruth.intrinsics(camera_for(scene)),
-                                                      gt_formats.depth_png_scale(scene.camera.far), recorder)
+                                                      groundtruth.intrinsics(camera) if lens is None else lens.K,
+                                                      gt_formats.depth_png_scale(scene.camera.far), recorder, lens)
             done.add(k)
             if "write_passes" in plan:
                 _write_cameras(out, scene, done)  # before the manifest records the frame as finished

@@ -58,16 +58,20 @@ def kitti_path(out: Path, key: str, index: int) -> Path:
 
 # --- OpenEXR -----------------------------------------------------------------------------------------------
 
-def ray_distance(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+def ray_distance(depth: np.ndarray, K, lens=None) -> np.ndarray:
     """Distance [m] from the camera centre to the point seen, ``depth |K^-1 (u, v, 1)|`` (pixel centres at
-    integer ``(u, v)``), float32; inf where the depth is."""
+    integer ``(u, v)``), float32; inf where the depth is. With a ``lens`` (``groundtruth.lens.FisheyeLens``) the
+    pixel's ray is its undistorted position's, ``depth |K^-1 (undistort(u, v), 1)|``."""
     h, w = depth.shape
     v, u = np.mgrid[0:h, 0:w].astype(float)
-    rays = np.stack([u, v, np.ones_like(u)], axis=-1) @ np.linalg.inv(np.asarray(K, float)).T
+    uv = np.stack([u, v], axis=-1)
+    if lens is not None:
+        uv = lens.undistort(uv)
+    rays = np.concatenate([uv, np.ones((h, w, 1))], axis=-1) @ np.linalg.inv(np.asarray(K, float)).T
     return (depth.astype(float) * np.linalg.norm(rays, axis=-1)).astype(np.float32)
 
 
-def exr_channels(hdr: np.ndarray, passes: dict, K: np.ndarray | None = None) -> dict[str, np.ndarray]:
+def exr_channels(hdr: np.ndarray, passes: dict, K: np.ndarray | None = None, lens=None) -> dict[str, np.ndarray]:
     """The channels of a frame's EXR: ``R``, ``G``, ``B`` from ``hdr`` and, per pass ``name`` of shape (H, W)
     or (H, W, c): floats as ``name.Z`` (one component) or ``name.X``, ``name.Y`` [, ``name.Z``]; integer ids
     as ``name.id`` and boolean masks as ``name.mask``, both UINT. With ``K`` and a ``depth`` pass, also
@@ -77,7 +81,7 @@ def exr_channels(hdr: np.ndarray, passes: dict, K: np.ndarray | None = None) -> 
     channels = {c: np.ascontiguousarray(hdr[..., i]) for i, c in enumerate("RGB")}
     layers = dict(passes)
     if K is not None and "depth" in layers:
-        layers["distance"] = ray_distance(np.asarray(layers["depth"]), K)
+        layers["distance"] = ray_distance(np.asarray(layers["depth"]), K, lens)
     for name, array in layers.items():
         if not isinstance(array, np.ndarray) or array.shape[:2] != (h, w) or array.ndim not in (2, 3):
             continue
@@ -96,11 +100,11 @@ def exr_channels(hdr: np.ndarray, passes: dict, K: np.ndarray | None = None) -> 
     return channels
 
 
-def write_exr(path: Path, hdr: np.ndarray, passes: dict, K: np.ndarray | None = None) -> None:
+def write_exr(path: Path, hdr: np.ndarray, passes: dict, K: np.ndarray | None = None, lens=None) -> None:
     """One multi-layer scanline OpenEXR (ZIP compression, lossless) with ``exr_channels``."""
     import OpenEXR  # imported here: only renders that ask for exr pay for loading it
 
-    channels = exr_channels(hdr, passes, K)
+    channels = exr_channels(hdr, passes, K, lens)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
 
     def write(tmp):
@@ -256,7 +260,7 @@ def frame_files(out: Path, index: int, formats) -> list[Path]:
 
 
 def write_frame_formats(out: Path, index: int, formats, hdr: np.ndarray, passes: dict, K: np.ndarray,
-                        depth_scale: float, recorder: StageRecorder | None = None) -> list[Path]:
+                        depth_scale: float, recorder: StageRecorder | None = None, lens=None) -> list[Path]:
     """Frame ``index``'s EXR and depth PNG (as ``formats`` asks) and its flow as .flo and KITTI PNG (whenever
     ``passes`` holds ``flow_forward`` / ``flow_backward``), each timed as its plan stage (``write_exr``,
     ``write_depth_png``, ``write_flow_files``). Returns the paths written."""
@@ -264,7 +268,7 @@ def write_frame_formats(out: Path, index: int, formats, hdr: np.ndarray, passes:
     written = []
     if "exr" in formats:
         with rec.run("write_exr"):
-            write_exr(exr_path(out, index), hdr, passes, K)
+            write_exr(exr_path(out, index), hdr, passes, K, lens)
         written.append(exr_path(out, index))
     if "depth_png" in formats:
         with rec.run("write_depth_png"):
