@@ -14,6 +14,7 @@ from sim.mesh.formats import read_gmsh1
 from sim.mesh.quality import neighbour_normal_angles
 from tissuerender import load_scene
 from tissuerender.bodies import build_body
+from tissuerender.errors import SceneError
 
 # node labels out of order and with gaps, as gmsh 1 allows; two tets, one triangle, one line, one point
 GMSH1_TETS = """$NOD
@@ -138,3 +139,15 @@ def test_a_users_closed_surface_is_the_render_surface_embedded_in_its_tets(scene
     # the tets are voxelised at cell_size = 0.01 scale: their box scales by the factor to the snapping's accuracy
     np.testing.assert_allclose(extent(bodies[2.0].mesh.points), 2.0 * extent(bodies[1.0].mesh.points), rtol=0.05)
     assert deform(bodies[1.0].embedding, bodies[1.0].mesh.tets, bodies[1.0].mesh.points).shape == (ellipsoid.n_points, 3)
+
+
+def test_a_surface_thinner_than_the_cells_is_refused_naming_the_cell_size(scene_dict, write_scene, tmp_path):
+    """A needle 2 cm thick voxelised at 1 cm: its tips get no tets, and extrapolating the tets' motion 1.5 cm out
+    would more than double it; the body is refused with what to change (1 cm thick at 3 mm cells: accepted)."""
+    _ellipsoid((0.1, 0.01, 0.01), resolution=40).save(tmp_path / "needle.vtp")
+    scene = _mesh_scene(scene_dict, write_scene, "needle.vtp", cell_size=0.01)
+    with pytest.raises(SceneError, match=r"objects\[0\].*needle\.vtp: the render surface leaves the tet mesh by "
+                                         r"0\.01\d+ m .* use a smaller cell_size"):
+        build_body(scene.objects[0], 0, scene)
+    scene = _mesh_scene(scene_dict, write_scene, "needle.vtp", cell_size=0.003, scale=1.0)
+    assert build_body(scene.objects[0], 0, scene).embedding.extra["outside_distance"].max() < 0.003

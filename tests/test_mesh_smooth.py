@@ -49,5 +49,6 @@ def test_organ_render_surface_is_outward_and_embedded_in_the_tets(organ_body):
     # rest tets reproduce the surface through the barycentrics (one 3x3 solve per point: ~1e-15 relative)
     np.testing.assert_allclose(organ_body.surface_points(mesh.points), surface.points, rtol=0, atol=1e-12)
     # points outside the tets (the smooth surface bulges past the boundary chords) stay within half a tet edge
+    # (the body is refused beyond a whole edge: sim.mesh.embed.check_embedding)
     edges = np.linalg.norm(q[:, [1, 2, 3]] - q[:, [0]], axis=2).mean()
     assert organ_body.embedding.extra["outside_distance"].max() <= 0.5 * edges

@@ -56,7 +56,7 @@ def deform(embedding: Embedding, tets: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def check_embedding(embedding: Embedding, mesh: TetMesh, surface) -> None:
-    """Refuse a render surface that leaves the tets by more than half the mean tet edge.
+    """Refuse a render surface that leaves the tets by more than the mean tet edge.
 
     Surface points outside the tet mesh (a smooth surface bulges past the chords of the snapped tet boundary by
     about edge^2 / (8 radius)) are not moved: they keep the affine extrapolation of their nearest tet (negative
@@ -65,12 +65,12 @@ def check_embedding(embedding: Embedding, mesh: TetMesh, surface) -> None:
     thinner than the cells got no tets, and a smaller cell size is needed.
     """
     edges = mesh.points[mesh.tets[:, [1, 2, 3]]] - mesh.points[mesh.tets[:, [0]]]
-    limit = 0.5 * float(np.linalg.norm(edges, axis=2).mean())
+    limit = float(np.linalg.norm(edges, axis=2).mean())
     distance = embedding.extra["outside_distance"]
     worst = int(np.argmax(distance))
     if distance[worst] > limit:
         from sim.errors import MeshError
 
         raise MeshError(f"{surface.source}: the render surface leaves the tet mesh by {distance[worst]:.3g} m at "
-                        f"{np.round(surface.points[worst], 4).tolist()} (at most half a tet edge, {limit:.3g} m); "
+                        f"{np.round(surface.points[worst], 4).tolist()} (at most the mean tet edge, {limit:.3g} m); "
                         f"a part thinner than the cells got no tets: use a smaller cell_size")
