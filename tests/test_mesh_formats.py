@@ -9,7 +9,6 @@ import pyvista
 
 from sim.errors import MeshError
 from sim.mesh import io
-from sim.mesh.embed import deform
 from sim.mesh.formats import read_gmsh1
 from sim.mesh.quality import neighbour_normal_angles
 from tissuerender import load_scene
@@ -138,7 +137,6 @@ def test_a_users_closed_surface_is_the_render_surface_embedded_in_its_tets(scene
     np.testing.assert_allclose(extent(bodies[2.0].surface.points), 2.0 * extent(bodies[1.0].surface.points), rtol=1e-14)
     # the tets are voxelised at cell_size = 0.01 scale: their box scales by the factor to the snapping's accuracy
     np.testing.assert_allclose(extent(bodies[2.0].mesh.points), 2.0 * extent(bodies[1.0].mesh.points), rtol=0.05)
-    assert deform(bodies[1.0].embedding, bodies[1.0].mesh.tets, bodies[1.0].mesh.points).shape == (ellipsoid.n_points, 3)
 
 
 def test_a_surface_thinner_than_the_cells_is_refused_naming_the_cell_size(scene_dict, write_scene, tmp_path):

@@ -91,7 +91,8 @@ def read_gmsh1(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             labels[j] = int(fields[0])
             nodes[j] = [float(v) for v in fields[1:]]
         except ValueError:
-            raise MeshError(f"{path}: line {line}: expected 'node-number x y z', found {' '.join(fields)[:60]!r}") from None
+            raise MeshError(f"{path}: line {line}: expected 'node-number x y z', "
+                            f"found {' '.join(fields)[:60]!r}") from None
     cursor += n_nodes
     expect("$ENDNOD")
     expect("$ELM")

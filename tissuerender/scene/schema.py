@@ -152,7 +152,7 @@ class ObjectSpec(Strict):
     position: Vec3 = Field([0.0, 0.0, 0.0], description="translation applied to the mesh [m]")
     render_subdivision: Annotated[int, Field(ge=0, le=3, description=(
         "body: levels of 4-to-1 subdivision of the render surface, embedded in the tets by barycentric coordinates "
-        "(organ shapes: a smooth contour of their shape at cell_size / 2**max(1, levels), at most scale / 64, "
+        "(organ shapes: a smooth contour of their shape at cell_size / 2**max(1, levels), within scale / 160 to / 64, "
         "instead of the tets' boundary; see docs/meshes.md)"))] = 0
     override: MaterialOverride | None = Field(None, description="body: replace the preset's mechanics (table below)")
     optics: OpticsOverride | None = Field(None, description=(
