@@ -52,3 +52,26 @@ def test_organ_render_surface_is_outward_and_embedded_in_the_tets(organ_body):
     # (the body is refused beyond a whole edge: sim.mesh.embed.check_embedding)
     edges = np.linalg.norm(q[:, [1, 2, 3]] - q[:, [0]], axis=2).mean()
     assert organ_body.embedding.extra["outside_distance"].max() <= 0.5 * edges
+
+
+def _extent_in_y(points, x_from, x_to, sign):
+    band = points[(points[:, 0] >= x_from) & (points[:, 0] <= x_to)]
+    return (sign * band[:, 1]).max()
+
+
+def test_the_kidney_has_a_hilum_and_the_liver_a_notched_front_edge():
+    """Concavities a convex blob cannot have: the kidney's +y side dips at its middle (the hilum), the liver's
+    front (-y) edge dips between the lobes (the ligamentum teres notch at x = -0.2 scale)."""
+    from sim.mesh.contour import smooth_surface
+
+    s = DEFAULT_SCALE["kidney"]
+    sdf, lo, hi = procedural.kidney_sdf(s)
+    p = smooth_surface(sdf, lo, hi, s / 32).points
+    middle, sides = _extent_in_y(p, -0.03 * s, 0.03 * s, 1), _extent_in_y(p, 0.25 * s, 0.3 * s, 1)
+    assert middle < sides - 0.05 * s, (middle / s, sides / s)
+    s = DEFAULT_SCALE["liver"]
+    sdf, lo, hi = procedural.liver_sdf(s)
+    p = smooth_surface(sdf, lo, hi, s / 32).points
+    notch = _extent_in_y(p, -0.26 * s, -0.2 * s, -1)  # how far forward the front edge reaches, here and beside
+    left, right = _extent_in_y(p, -0.5 * s, -0.44 * s, -1), _extent_in_y(p, 0.0, 0.06 * s, -1)
+    assert notch < left - 0.015 * s and notch < right - 0.05 * s, (notch / s, left / s, right / s)

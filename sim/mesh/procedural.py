@@ -240,7 +240,7 @@ def _smooth_subtract(a, b, k):
 def liver_sdf(scale: float):
     """A liver seen from the front (-y), +z up, flat posterior-inferior base on z = 0 with a rounded rim: a thick
     right lobe (+x) with a domed upper face, a thinner left lobe tapering to the left, joined smoothly; the upper
-    face slopes down to a thin anterior-inferior edge, notched between the lobes (the ligamentum teres)."""
+    face slopes down to a thin anterior-inferior edge, notched between the lobes (the ligamentum teres, x = -0.2 s)."""
     s = scale
 
     def sdf(p):
@@ -250,7 +250,7 @@ def liver_sdf(scale: float):
         # a plane rising from z = 0.06 s at y = -0.5 s with slope 0.9 (42 degrees): the thin front edge
         slope = ((p[:, 2] - 0.06 * s) - 0.9 * (p[:, 1] + 0.5 * s)) / np.hypot(1.0, 0.9)
         liver = _smooth_max(lobes, slope, 0.2 * s)
-        notch = np.hypot(p[:, 0] + 0.12 * s, p[:, 1] + 0.62 * s) - 0.16 * s  # a vertical cylinder at the front
+        notch = np.hypot(p[:, 0] + 0.18 * s, p[:, 1] + 0.42 * s) - 0.18 * s  # a vertical cylinder at the front
         return _smooth_max(_smooth_subtract(liver, notch, 0.1 * s), -p[:, 2], 0.1 * s)
 
     return sdf, (-1.1 * s, -0.55 * s, 0.0), (1.0 * s, 0.6 * s, 0.7 * s)
