@@ -149,3 +149,21 @@ def test_a_surface_thinner_than_the_cells_is_refused_naming_the_cell_size(scene_
         build_body(scene.objects[0], 0, scene)
     scene = _mesh_scene(scene_dict, write_scene, "needle.vtp", cell_size=0.003, scale=1.0)
     assert build_body(scene.objects[0], 0, scene).embedding.extra["outside_distance"].max() < 0.003
+
+
+def test_an_stl_triangle_soup_is_welded_and_turned_outward(tmp_path):
+    """STL stores three vertices per triangle: welded, the icosphere's 1,280 triangles share its 642 vertices
+    (else each would be shaded flat); listed clockwise, they are flipped so normals point out."""
+    import trimesh
+
+    from sim.mesh.surface import orient_outward, weld
+
+    sphere = trimesh.creation.icosphere(3, 0.05)
+    inward = trimesh.Trimesh(sphere.vertices, sphere.faces[:, ::-1], process=False)
+    (tmp_path / "inward.stl").write_bytes(inward.export(file_type="stl"))
+    read = io.read_surface(tmp_path / "inward.stl")
+    assert read.points.shape == (3 * 1280, 3)
+    surface = orient_outward(weld(read))
+    assert surface.points.shape == (642, 3) and surface.triangles.shape == (1280, 3)
+    p = surface.points[surface.triangles]
+    assert np.einsum("ij,ij->", np.cross(p[:, 0], p[:, 1]), p[:, 2]) / 6 > 0.95 * 4 / 3 * np.pi * 0.05**3
