@@ -167,3 +167,12 @@ def test_an_stl_triangle_soup_is_welded_and_turned_outward(tmp_path):
     assert surface.points.shape == (642, 3) and surface.triangles.shape == (1280, 3)
     p = surface.points[surface.triangles]
     assert np.einsum("ij,ij->", np.cross(p[:, 0], p[:, 1]), p[:, 2]) / 6 > 0.95 * 4 / 3 * np.pi * 0.05**3
+
+
+def test_an_unreadable_vtk_surface_is_one_mesh_error_and_vtk_prints_nothing(tmp_path, capfd):
+    (tmp_path / "garbage.vtp").write_bytes(bytes(range(256)) * 2)
+    (tmp_path / "short.vtk").write_text("# vtk DataFile Version 2.0\nx\nASCII\nDATASET POLYDATA\nPOINTS 3 float\n0 0 0\n")
+    for name in ("garbage.vtp", "short.vtk"):
+        with pytest.raises(MeshError, match=rf"{name}: cannot read the VTK surface"):
+            io.read_surface(tmp_path / name)
+    assert capfd.readouterr().err == ""

@@ -142,7 +142,7 @@ def read_vtk_polydata(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     (legacy ``.vtk`` or XML ``.vtp``). Polygons are split into triangles (``vtkTriangleFilter``); vertices,
     lines and strips-as-lines are dropped."""
     from vtkmodules.util.numpy_support import vtk_to_numpy
-    from vtkmodules.vtkCommonCore import vtkFileOutputWindow, vtkOutputWindow
+    from vtkmodules.vtkCommonCore import vtkFileOutputWindow, vtkLogger, vtkOutputWindow
     from vtkmodules.vtkFiltersCore import vtkTriangleFilter
     from vtkmodules.vtkIOLegacy import vtkPolyDataReader
     from vtkmodules.vtkIOXML import vtkXMLPolyDataReader
@@ -153,11 +153,14 @@ def read_vtk_polydata(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         raise MeshError(f"{path}: expected a VTK POLYDATA surface ('DATASET POLYDATA' in the header)")
     reader = vtkPolyDataReader() if legacy else vtkXMLPolyDataReader()
     reader.SetFileName(str(path))
-    # VTK reports unreadable input on its output window, not by raising: silence it and check the result.
+    # VTK reports unreadable input on its output window and its logger, not by raising: silence both (a bad file
+    # gets one MeshError line, not VTK's log) and check the result.
     sink = vtkFileOutputWindow()
     sink.SetFileName("/dev/null")
     previous = vtkOutputWindow.GetInstance()
     vtkOutputWindow.SetInstance(sink)
+    verbosity = vtkLogger.GetCurrentVerbosityCutoff()
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
     try:
         reader.Update()
         failed = (reader.GetErrorCode() != 0) if hasattr(reader, "GetErrorCode") else False
@@ -168,6 +171,7 @@ def read_vtk_polydata(path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         triangulate.Update()
     finally:
         vtkOutputWindow.SetInstance(previous)
+        vtkLogger.SetStderrVerbosity(vtkLogger.ConvertToVerbosity(verbosity))
     poly = triangulate.GetOutput()
     if failed or poly is None or poly.GetNumberOfPoints() == 0:
         raise MeshError(f"{path}: cannot read the VTK surface (no points; is it a valid {path.suffix} POLYDATA file?)")
