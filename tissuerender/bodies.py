@@ -2,56 +2,82 @@
 
 A *body* is a tet mesh (procedural or from a file) with a :class:`sim.model.Model` built from its
 material preset, fixed regions, prescribed displacements and surface tractions, and a render surface
-embedded in its tets by barycentric coordinates so it follows the deformation. A *static surface* is
+embedded in its tets by barycentric coordinates so it follows the deformation. The render surface of an
+organ shape is a smooth contour of its SDF, that of a closed surface file the file's own triangles (the
+tets only approximate them), otherwise the tets' boundary. A *static surface* is
 a triangle mesh loaded from a file and rendered with its own vertex normals.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 import materials
 from sim.errors import MeshError
 from sim.mesh import io, procedural, select
-from sim.mesh.embed import deform, embed_points
-from sim.mesh.surface import boundary_surface, subdivide, taubin_smooth
+from sim.mesh.contour import smooth_surface
+from sim.mesh.embed import check_embedding, deform, embed_points
+from sim.mesh.surface import boundary_surface, box_uv, orient_outward, subdivide, vertex_normals, weld
 from sim.mesh.types import Embedding, SurfaceMesh, TetMesh
 from sim.model import Model, PrescribedDisplacement
 from sim.painting import Stroke, apply_painting
 from tissuerender.errors import SceneError
 from tissuerender.scene import Scene
 from tissuerender.scene.schema import ObjectSpec, Region
-from tissuerender.scene.shapes import DEFAULT_SCALE, ORGAN_SHAPES, procedural_extent
+from tissuerender.scene.shapes import DEFAULT_SCALE, ORGAN_SHAPES, organ_render_pitch, procedural_extent
+
+
+def _scaled(obj: ObjectSpec) -> float:
+    return obj.scale if obj.scale is not None else 1.0
+
+
+def read_mesh_body(obj: ObjectSpec, scene: Scene) -> tuple[TetMesh, SurfaceMesh | None]:
+    """A mesh-file body's rest tets and, for a closed surface file, that surface (the render surface), both
+    scaled by ``obj.scale`` about the file's origin and then translated to ``obj.position``."""
+    path = scene.resolve(obj.mesh)
+    offset = np.asarray(obj.position, dtype=np.float64)
+    if not io.is_surface_file(path):
+        mesh = io.read_tet_mesh(path)
+        return TetMesh(mesh.points * _scaled(obj) + offset, mesh.tets, source=mesh.source, repairs=mesh.repairs), None
+    surface = orient_outward(weld(io.read_surface(path)))
+    surface = SurfaceMesh(surface.points * _scaled(obj) + offset, surface.triangles, surface.normals, surface.uv,
+                          source=surface.source)
+    # A closed surface: voxelised into tets (trimesh) with the boundary snapped back onto it.
+    extent = surface.points.max(axis=0) - surface.points.min(axis=0)
+    h = obj.cell_size if obj.cell_size is not None else float(extent.min()) / 8.0
+    return io.tetrahedralize_surface(surface, h), surface
 
 
 def build_tet_mesh(obj: ObjectSpec, scene: Scene) -> TetMesh:
-    """The body's rest tet mesh, translated to ``obj.position``."""
-    if obj.mesh is not None and Path(obj.mesh).suffix.lower() in io.SURFACE_SUFFIXES:
-        # A closed surface: voxelised into tets (trimesh) with the boundary snapped back onto it.
-        surface = io.read_surface(scene.resolve(obj.mesh))
-        extent = surface.points.max(axis=0) - surface.points.min(axis=0)
-        h = obj.cell_size if obj.cell_size is not None else float(extent.min()) / 8.0
-        mesh = io.tetrahedralize_surface(surface, h)
-    elif obj.mesh is not None:
-        mesh = io.read_tet_mesh(scene.resolve(obj.mesh))
+    """The body's rest tet mesh, scaled (mesh files) and translated to ``obj.position``."""
+    if obj.mesh is not None:
+        return read_mesh_body(obj, scene)[0]
+    extent, h = procedural_extent(obj)
+    cells = tuple(max(1, math.ceil(e / h)) for e in extent)
+    if obj.shape in ("box", "beam"):
+        mesh = procedural.box(size=extent, cells=cells)
+    elif obj.shape == "cube":
+        mesh = procedural.cube(side=extent[0], n_cells=cells[0])
+    elif obj.shape == "cylinder":
+        mesh = procedural.cylinder(length=extent[2], radius=extent[0] / 2.0, h=h)
+    elif obj.shape == "slab":
+        mesh = procedural.slab(size=extent, h=h)
     else:
-        extent, h = procedural_extent(obj)
-        cells = tuple(max(1, math.ceil(e / h)) for e in extent)
-        if obj.shape in ("box", "beam"):
-            mesh = procedural.box(size=extent, cells=cells)
-        elif obj.shape == "cube":
-            mesh = procedural.cube(side=extent[0], n_cells=cells[0])
-        elif obj.shape == "cylinder":
-            mesh = procedural.cylinder(length=extent[2], radius=extent[0] / 2.0, h=h)
-        elif obj.shape == "slab":
-            mesh = procedural.slab(size=extent, h=h)
-        else:
-            scale = obj.scale if obj.scale is not None else DEFAULT_SCALE[obj.shape]
-            mesh = getattr(procedural, obj.shape)(scale=scale, h=h)
+        scale = obj.scale if obj.scale is not None else DEFAULT_SCALE[obj.shape]
+        mesh = getattr(procedural, obj.shape)(scale=scale, h=h)
     return TetMesh(mesh.points + np.asarray(obj.position), mesh.tets, source=mesh.source)
+
+
+def organ_surface(obj: ObjectSpec) -> SurfaceMesh:
+    """The smooth render surface of an organ shape: its SDF contoured at ``organ_render_pitch`` and smoothed
+    (:func:`sim.mesh.contour.smooth_surface`), translated to ``obj.position``."""
+    scale = obj.scale if obj.scale is not None else DEFAULT_SCALE[obj.shape]
+    sdf, lo, hi = getattr(procedural, f"{obj.shape}_sdf")(scale)
+    surface = smooth_surface(sdf, lo, hi, organ_render_pitch(obj), source=f"procedural:{obj.shape}")
+    return SurfaceMesh(surface.points + np.asarray(obj.position), surface.triangles, surface.normals, surface.uv,
+                       source=surface.source)
 
 
 def region_nodes(points: np.ndarray, region: Region) -> np.ndarray:
@@ -140,22 +166,34 @@ class StaticSurface:
 
 
 def build_body(obj: ObjectSpec, index: int, scene: Scene) -> Body:
+    """The body's tets, model and render surface: an organ shape's smooth contour of its SDF, a closed surface
+    file's own triangles, or else the tets' boundary; subdivided ``render_subdivision`` times (organs: folded
+    into the contour's resolution instead) and embedded in the tets (``check_embedding``)."""
     try:
-        mesh = build_tet_mesh(obj, scene)
+        if obj.mesh is not None:
+            mesh, surface = read_mesh_body(obj, scene)
+        else:
+            mesh, surface = build_tet_mesh(obj, scene), None
+        if obj.shape in ORGAN_SHAPES:
+            surface = organ_surface(obj)
     except MeshError as e:
         raise SceneError(scene.path, f"objects[{index}]", str(e)) from None
     boundary = boundary_surface(mesh)
     model = build_model(obj, index, mesh, scene, boundary)
-    surface = boundary
-    if obj.shape in ORGAN_SHAPES:
-        # Organ shapes come from a voxel grid: smooth the staircase away at the tet-mesh scale first,
-        # then again lightly after subdivision; the result is embedded in the tets.
-        surface = taubin_smooth(surface, iterations=20)
-    if obj.render_subdivision:
+    if surface is None:
+        surface = boundary
+    elif surface.uv is None or surface.normals is None:
+        normals = surface.normals if surface.normals is not None else vertex_normals(surface.points, surface.triangles)
+        surface = SurfaceMesh(surface.points, surface.triangles, normals,
+                              surface.uv if surface.uv is not None else box_uv(surface.points, normals),
+                              source=surface.source)
+    if obj.render_subdivision and obj.shape not in ORGAN_SHAPES:
         surface = subdivide(surface, obj.render_subdivision)
-        if obj.shape in ORGAN_SHAPES:
-            surface = taubin_smooth(surface, iterations=4)
     embedding = embed_points(mesh, surface.points)
+    try:
+        check_embedding(embedding, mesh, surface)
+    except MeshError as e:
+        raise SceneError(scene.path, f"objects[{index}]", str(e)) from None
     return Body(obj, mesh, model, surface, embedding)
 
 

@@ -53,3 +53,24 @@ def deform(embedding: Embedding, tets: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Embedded point positions for node positions ``x``: ``sum_k bary_k x[tet_k]``."""
     corners = x[tets[embedding.tet_index]]  # (p, 4, 3)
     return np.einsum("pk,pkd->pd", embedding.bary, corners)
+
+
+def check_embedding(embedding: Embedding, mesh: TetMesh, surface) -> None:
+    """Refuse a render surface that leaves the tets by more than the mean tet edge.
+
+    Surface points outside the tet mesh (a smooth surface bulges past the chords of the snapped tet boundary by
+    about edge^2 / (8 radius)) are not moved: they keep the affine extrapolation of their nearest tet (negative
+    barycentrics), so the rest surface is exactly the given one and follows the deformation of the tets next to
+    it. Farther out, the extrapolation would amplify the tet's deformation; that means a part of the surface
+    thinner than the cells got no tets, and a smaller cell size is needed.
+    """
+    edges = mesh.points[mesh.tets[:, [1, 2, 3]]] - mesh.points[mesh.tets[:, [0]]]
+    limit = float(np.linalg.norm(edges, axis=2).mean())
+    distance = embedding.extra["outside_distance"]
+    worst = int(np.argmax(distance))
+    if distance[worst] > limit:
+        from sim.errors import MeshError
+
+        raise MeshError(f"{surface.source}: the render surface leaves the tet mesh by {distance[worst]:.3g} m at "
+                        f"{np.round(surface.points[worst], 4).tolist()} (at most the mean tet edge, {limit:.3g} m); "
+                        f"a part thinner than the cells got no tets: use a smaller cell_size")

@@ -1,5 +1,9 @@
-"""Reading meshes: tet meshes through meshio, triangle surfaces through trimesh, and closed surfaces
-turned into tet meshes by voxelisation. Every problem raises :class:`MeshError` naming the file."""
+"""Reading meshes: tet meshes through meshio (gmsh 1 with :mod:`sim.mesh.formats`), triangle surfaces
+through trimesh (VTK POLYDATA and gmsh 1 triangles with :mod:`sim.mesh.formats`), and closed surfaces
+turned into tet meshes by voxelisation. Every problem raises :class:`MeshError` naming the file.
+
+Which file is a surface: ``.ply``, ``.obj``, ``.stl``, ``.vtp`` always; a ``.vtk`` whose header says
+``DATASET POLYDATA``; a gmsh 1 ``.msh`` without tetrahedra (``is_surface_file``)."""
 from __future__ import annotations
 
 import contextlib
@@ -10,12 +14,36 @@ import meshio
 import numpy as np
 
 from sim.errors import MeshError
+from sim.mesh.formats import is_gmsh1, is_vtk_polydata, read_gmsh1, read_vtk_polydata
 from sim.mesh.procedural import KUHN, _compact, _grid, _snap_boundary, orient, signed_volumes
 from sim.mesh.types import SurfaceMesh, TetMesh
 
 # the one table of mesh file suffixes (the scene loader checks scene paths against it)
 TET_SUFFIXES = (".msh", ".vtu", ".vtk", ".mesh")
-SURFACE_SUFFIXES = (".ply", ".obj", ".stl")
+SURFACE_SUFFIXES = (".ply", ".obj", ".stl", ".vtp")
+# suffixes that hold either a tet mesh or a surface, told apart by the content (is_surface_file)
+EITHER_SUFFIXES = (".vtk", ".msh")
+
+
+def is_surface_file(path) -> bool:
+    """Whether a body's mesh file is a triangle surface (voxelised into tets) rather than a tet mesh.
+
+    Unreadable files count as tet meshes, so the tet reader reports what is wrong with them."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in SURFACE_SUFFIXES:
+        return True
+    if suffix not in EITHER_SUFFIXES or not path.is_file():
+        return False
+    try:
+        if suffix == ".vtk":
+            return is_vtk_polydata(path)
+        if not is_gmsh1(path):
+            return False
+        _, tets, triangles = read_gmsh1(path)
+    except (OSError, MeshError):
+        return False
+    return tets.shape[0] == 0 and triangles.shape[0] > 0
 
 
 def _check_file(path: Path, suffixes) -> None:
@@ -66,6 +94,13 @@ def read_tet_mesh(path) -> TetMesh:
     """
     path = Path(path)
     _check_file(path, TET_SUFFIXES)
+    if path.suffix.lower() == ".msh" and is_gmsh1(path):
+        nodes, tets, _ = read_gmsh1(path)
+        if tets.shape[0] == 0:
+            raise MeshError(f"{path}: no tetrahedra in the gmsh 1 file (element type 4); expected a tet mesh")
+        mesh, info = clean_tets(nodes, tets, str(path))
+        mesh.repairs = info
+        return mesh
     chatter = io_module.StringIO()
     try:
         # meshio prints its own complaints and may even call sys.exit on unreadable input.
@@ -85,11 +120,23 @@ def read_tet_mesh(path) -> TetMesh:
 
 
 def read_surface(path) -> SurfaceMesh:
-    """A triangle surface from .ply, .obj or .stl (trimesh), keeping the file's vertex normals and UVs."""
+    """A triangle surface from .ply, .obj or .stl (trimesh), keeping the file's vertex normals and UVs, or from
+    a VTK POLYDATA ``.vtp``/``.vtk`` or a gmsh 1 ``.msh`` holding triangles (:mod:`sim.mesh.formats`)."""
+    path = Path(path)
+    _check_file(path, SURFACE_SUFFIXES + EITHER_SUFFIXES)
+    suffix = path.suffix.lower()
+    if suffix in (".vtp", ".vtk"):
+        points, triangles, normals = read_vtk_polydata(path)
+        return _checked_surface(path, points, triangles, normals)
+    if suffix == ".msh":
+        if not is_gmsh1(path):
+            raise MeshError(f"{path}: a surface .msh must be a gmsh 1 file ($NOD/$ELM) holding triangles")
+        points, _, triangles = read_gmsh1(path)
+        if triangles.shape[0] == 0:
+            raise MeshError(f"{path}: no triangles in the gmsh 1 file (element type 2)")
+        return _checked_surface(path, points, triangles, None)
     import trimesh  # lazy: seconds to import, and only surface files need it
 
-    path = Path(path)
-    _check_file(path, SURFACE_SUFFIXES)
     try:
         tm = trimesh.load(path, force="mesh", process=False, maintain_order=True)
     except Exception as e:
@@ -105,6 +152,20 @@ def read_surface(path) -> SurfaceMesh:
     if visual_uv is not None and len(visual_uv) == len(points):
         uv = np.asarray(visual_uv, dtype=np.float64)
     return SurfaceMesh(points, np.asarray(tm.faces), normals=normals, uv=uv, source=str(path))
+
+
+def _checked_surface(path: Path, points, triangles, normals) -> SurfaceMesh:
+    """A surface of the nodes its triangles use (others dropped), with finite coordinates and valid indices."""
+    if not np.isfinite(points).all():
+        raise MeshError(f"{path}: non-finite vertex coordinates")
+    if triangles.size and (triangles.min() < 0 or triangles.max() >= points.shape[0]):
+        raise MeshError(f"{path}: a triangle references a node outside the {points.shape[0]} nodes")
+    used, local = np.unique(triangles, return_inverse=True)
+    if normals is not None:
+        normals = normals[used]
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        normals = normals / np.where(length > 0, length, 1.0) if np.isfinite(normals).all() else None
+    return SurfaceMesh(points[used], local.reshape(-1, 3), normals=normals, source=str(path))
 
 
 def _file_normals(path: Path, tm, n: int) -> np.ndarray | None:

@@ -227,29 +227,46 @@ def slab(size=(0.2, 0.2, 0.03), h: float | None = None) -> TetMesh:
     return box(size, cells, source="procedural:slab")
 
 
+def _smooth_max(a, b, k):
+    """Smooth maximum (a rounded intersection of width ``k``), the mirror of :func:`_smooth_union`."""
+    return -_smooth_union(-a, -b, k)
+
+
+def _smooth_subtract(a, b, k):
+    """``a`` with ``b`` carved out, rounded over a width ``k`` (the mirror of :func:`_smooth_union`)."""
+    return _smooth_max(a, -b, k)
+
+
 def liver_sdf(scale: float):
-    """Two smooth-joined ellipsoidal lobes (right lobe larger), flat base on z = 0, +z up."""
+    """A liver seen from the front (-y), +z up, flat posterior-inferior base on z = 0 with a rounded rim: a thick
+    right lobe (+x) with a domed upper face, a thinner left lobe tapering to the left, joined smoothly; the upper
+    face slopes down to a thin anterior-inferior edge, notched between the lobes (the ligamentum teres, x = -0.2 s)."""
     s = scale
 
     def sdf(p):
-        right = _ellipsoid(p, (0.25 * s, 0.0, 0.32 * s), (0.75 * s, 0.55 * s, 0.36 * s))
-        left = _ellipsoid(p, (-0.45 * s, 0.08 * s, 0.24 * s), (0.55 * s, 0.40 * s, 0.24 * s))
-        return np.maximum(_smooth_union(right, left, 0.15 * s), -p[:, 2])
+        right = _ellipsoid(p, (0.3 * s, 0.05 * s, 0.3 * s), (0.7 * s, 0.55 * s, 0.4 * s))
+        left = _ellipsoid(p, (-0.5 * s, 0.1 * s, 0.18 * s), (0.6 * s, 0.38 * s, 0.2 * s))
+        lobes = _smooth_union(right, left, 0.15 * s)
+        # a plane rising from z = 0.06 s at y = -0.5 s with slope 0.9 (42 degrees): the thin front edge
+        slope = ((p[:, 2] - 0.06 * s) - 0.9 * (p[:, 1] + 0.5 * s)) / np.hypot(1.0, 0.9)
+        liver = _smooth_max(lobes, slope, 0.2 * s)
+        notch = np.hypot(p[:, 0] + 0.18 * s, p[:, 1] + 0.42 * s) - 0.18 * s  # a vertical cylinder at the front
+        return _smooth_max(_smooth_subtract(liver, notch, 0.1 * s), -p[:, 2], 0.1 * s)
 
-    return sdf, (-1.0 * s, -0.55 * s, 0.0), (1.0 * s, 0.55 * s, 0.7 * s)
+    return sdf, (-1.1 * s, -0.55 * s, 0.0), (1.0 * s, 0.6 * s, 0.7 * s)
 
 
 def kidney_sdf(scale: float):
-    """A bean: an ellipsoid with a smooth indentation (the hilum) on its +y side, resting on z = 0."""
+    """A bean: an ellipsoid with a smooth indentation (the hilum) on its +y side, resting on z = 0 (rounded rim)."""
     s = scale
 
     def sdf(p):
         body = _ellipsoid(p, (0.0, 0.0, 0.2 * s), (0.5 * s, 0.3 * s, 0.24 * s))
         hilum = np.linalg.norm(p - np.array([0.0, 0.38 * s, 0.2 * s]), axis=1) - 0.2 * s
-        k = 0.06 * s
+        k = 0.15 * s
         hmix = np.clip(0.5 - 0.5 * (body + hilum) / k, 0.0, 1.0)
         carved = body * (1 - hmix) + (-hilum) * hmix + k * hmix * (1 - hmix)  # smooth subtraction
-        return np.maximum(carved, -p[:, 2])
+        return _smooth_max(carved, -p[:, 2], 0.1 * s)
 
     return sdf, (-0.5 * s, -0.3 * s, 0.0), (0.5 * s, 0.3 * s, 0.44 * s)
 

@@ -1,4 +1,4 @@
-"""Tet-mesh quality: dihedral angles, volume ratio and inverted elements."""
+"""Mesh quality: tet dihedral angles, volume ratio and inverted elements; angles between neighbouring faces."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -50,3 +50,20 @@ def quality_report(mesh: TetMesh) -> QualityReport:
     dih = dihedral_angles(mesh.points, mesh.tets)
     return QualityReport(mesh.n_points, mesh.n_tets, float(dih.min()), float(dih.max()), float(ratio.min()),
                          float(ratio.mean()), int((vol <= 0.0).sum()), float(vol.sum()))
+
+
+def neighbour_normal_angles(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Angle [degrees] between the normals of the two faces at each edge shared by exactly two triangles
+    (a facet shows where it is large; a voxel staircase has 90-degree steps)."""
+    p = points[triangles]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    edges = np.sort(np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1)
+    face = np.tile(np.arange(triangles.shape[0]), 3)
+    order = np.lexsort((edges[:, 1], edges[:, 0]))
+    edges, face = edges[order], face[order]
+    same = (edges[1:] == edges[:-1]).all(axis=1)
+    # an edge shared by exactly two faces: equal to its successor, and neither a third copy before nor after
+    first = np.flatnonzero(same & ~np.r_[same[1:], False] & ~np.r_[False, same[:-1]])
+    cos = np.einsum("ij,ij->i", n[face[first]], n[face[first + 1]])
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))

@@ -53,6 +53,32 @@ def boundary_surface(mesh: TetMesh) -> SurfaceMesh:
                        source=mesh.source, vertex_map=used.astype(np.int64))
 
 
+def weld(surface: SurfaceMesh) -> SurfaceMesh:
+    """Vertices with equal position (and equal normal and UV, where given) merged into one, so a triangle
+    soup (an STL file has no shared vertices) becomes a connected surface; triangles keep their order."""
+    key = [surface.points] + [a for a in (surface.normals, surface.uv) if a is not None]
+    _, first, inverse = np.unique(np.concatenate(key, axis=1), axis=0, return_index=True, return_inverse=True)
+    if first.size == surface.points.shape[0]:
+        return surface
+    order = np.argsort(first)  # unique rows in the file order of their first occurrence
+    rank = np.empty(first.size, dtype=np.int64)
+    rank[order] = np.arange(first.size)
+    keep = first[order]
+    triangles = rank[inverse.ravel()][surface.triangles]
+    pick = lambda a: None if a is None else a[keep]  # noqa: E731
+    return SurfaceMesh(surface.points[keep], triangles, pick(surface.normals), pick(surface.uv), source=surface.source)
+
+
+def orient_outward(surface: SurfaceMesh) -> SurfaceMesh:
+    """The surface with every triangle's winding reversed when the enclosed signed volume is negative (the
+    file listed its triangles clockwise seen from outside), so geometric normals point out."""
+    p = surface.points[surface.triangles]
+    if np.einsum("ij,ij->", np.cross(p[:, 0], p[:, 1]), p[:, 2]) >= 0.0:
+        return surface
+    return SurfaceMesh(surface.points, surface.triangles[:, [0, 2, 1]], surface.normals, surface.uv,
+                       source=surface.source)
+
+
 def subdivide(surface: SurfaceMesh, levels: int = 1) -> SurfaceMesh:
     """Midpoint 4-to-1 subdivision, ``levels`` times (positions, normals and UVs interpolated linearly).
 
@@ -83,16 +109,18 @@ def subdivide(surface: SurfaceMesh, levels: int = 1) -> SurfaceMesh:
 def taubin_smooth(surface: SurfaceMesh, iterations: int = 10, lam: float = 0.5, mu: float = -0.53) -> SurfaceMesh:
     """Taubin lambda/mu smoothing (Taubin 1995): alternating shrink and inflate umbrella steps remove
     the voxel staircase of SDF meshes without shrinking the shape. Normals are recomputed."""
+    from scipy.sparse import coo_matrix  # the umbrella operator as a sparse matrix: one product per step
+
     tris = surface.triangles
     n = surface.points.shape[0]
     edges = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
     edges = np.unique(np.sort(edges, axis=1), axis=0)
-    degree = np.bincount(edges.ravel(), minlength=n).astype(np.float64)[:, None]
+    degree = np.bincount(edges.ravel(), minlength=n).astype(np.float64)
+    rows = np.concatenate([edges[:, 0], edges[:, 1]])
+    cols = np.concatenate([edges[:, 1], edges[:, 0]])
+    umbrella = coo_matrix((1.0 / np.maximum(degree, 1.0)[rows], (rows, cols)), shape=(n, n)).tocsr()
     p = surface.points.copy()
     for _ in range(iterations):
         for factor in (lam, mu):
-            acc = np.zeros_like(p)
-            np.add.at(acc, edges[:, 0], p[edges[:, 1]])
-            np.add.at(acc, edges[:, 1], p[edges[:, 0]])
-            p = p + factor * (acc / np.maximum(degree, 1.0) - p)
+            p = p + factor * (umbrella @ p - p)
     return SurfaceMesh(p, tris, normals=vertex_normals(p, tris), uv=surface.uv, source=surface.source)

@@ -143,16 +143,18 @@ class ObjectSpec(Strict):
         "grid cell [m] of a procedural tet mesh (default min(size)/4, organs scale/6) or of the voxelised surface "
         "of a mesh body (default 1/8 of its smallest extent); a body may have at most 400,000 tets"))
     scale: Annotated[float, Field(gt=0.0, le=1e3)] | None = Field(None, description=(
-        "size [m] of an organ shape (liver 0.15, kidney 0.11 by default); for a static surface, a uniform scale "
-        "of the file's coordinates"))
+        "size [m] of an organ shape (liver 0.15, kidney 0.11 by default); for a mesh file (body or static surface), "
+        "a uniform scale of the file's coordinates, applied before position"))
     mesh: str | None = Field(None, description=(
-        "path relative to the scene: a body's tet mesh (.msh, .vtu, .vtk, .mesh, read with meshio) or closed "
-        "surface (.ply, .obj, .stl, voxelised into tets of cell_size); a static surface's triangles (.ply, .obj, "
-        ".stl, read with trimesh; vertex normals and UVs in the file are kept)"))
+        "path relative to the scene: a body's tet mesh (.msh gmsh 1, 2.2 or 4, .vtu, .vtk unstructured grid, .mesh) "
+        "or closed surface (.ply, .obj, .stl, .vtp, .vtk POLYDATA, gmsh 1 .msh of triangles; voxelised into tets of "
+        "cell_size, its own triangles drawn, embedded in them); a static surface's triangles (.ply, .obj, .stl, "
+        ".vtp; vertex normals and UVs in the file are kept); see docs/meshes.md"))
     position: Vec3 = Field([0.0, 0.0, 0.0], description="translation applied to the mesh [m]")
     render_subdivision: Annotated[int, Field(ge=0, le=3, description=(
         "body: levels of 4-to-1 subdivision of the render surface, embedded in the tets by barycentric coordinates "
-        "(organ shapes also get a Taubin-smoothed render surface, so the voxel staircase does not show)"))] = 0
+        "(organ shapes: a smooth contour of their shape at cell_size / 2**max(1, levels), within scale / 160 to / 64, "
+        "instead of the tets' boundary; see docs/meshes.md)"))] = 0
     override: MaterialOverride | None = Field(None, description="body: replace the preset's mechanics (table below)")
     optics: OpticsOverride | None = Field(None, description=(
         "replace optical values of the preset (table below); tissuerender lookdev prints the table for a look"))

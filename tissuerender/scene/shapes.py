@@ -45,6 +45,18 @@ def procedural_extent(obj) -> tuple[tuple[float, float, float], float]:
     return extent, h
 
 
+def organ_render_pitch(obj) -> float:
+    """Grid spacing [m] at which an organ shape's render surface is contoured: ``cell_size / 2**levels``
+    (``levels = max(1, render_subdivision)``, finer than the tets), at most ``scale / 64`` and at least
+    ``scale / 160`` (the liver's contour grid then has 6.8e6 samples, under sim.mesh.contour.MAX_SAMPLES).
+    The cap keeps the angle between neighbouring faces below 10 degrees at the 99th percentile: that angle is about edge
+    length / curvature radius, and the organs' tightest radii (the kidney's poles and hilum, the liver's thin
+    edge) are about 0.1 scale, so edges of scale / 64 turn by about 9 degrees there (tests/test_mesh_smooth.py)."""
+    scale = obj.scale if obj.scale is not None else DEFAULT_SCALE[obj.shape]
+    h = obj.cell_size if obj.cell_size is not None else scale / 6.0
+    return max(min(h / 2.0 ** max(1, obj.render_subdivision), scale / 64.0), scale / 160.0)
+
+
 def estimated_tets(obj) -> int:
     """Upper estimate of a procedural body's tet count (6 tets per grid cell of its bounding box)."""
     extent, h = procedural_extent(obj)

@@ -9,11 +9,9 @@ something on (``effects.motion = true``, ``penumbra_samples > 0``) counts as set
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 import materials
 from sim.integrators import REGISTRY
-from sim.mesh.io import TET_SUFFIXES
+from sim.mesh.io import is_surface_file
 from tissuerender.errors import SceneError
 
 # [effects] keys that act only through another switch: key -> (the switch, what the key does)
@@ -50,14 +48,14 @@ def _objects(scene):
                     return f"{key}.{name}", (f"a static surface is rendered as its file's triangles and never "
                                              f"simulated: {name!r} has no effect on it (only bodies take it); remove it")
         elif obj.mesh is not None:
-            tet_file = Path(obj.mesh).suffix.lower() in TET_SUFFIXES
-            unused = ("size", "scale", "cell_size") if tet_file else ("size", "scale")
+            tet_file = not is_surface_file(scene.resolve(obj.mesh))
+            unused = ("size", "cell_size") if tet_file else ("size",)
             for name in unused:
                 if name in given:
                     how = ("a body read from a tet-mesh file keeps the file's nodes as they are" if tet_file else
                            "a body voxelised from a surface file keeps the file's coordinates (only cell_size, "
                            "the voxel size, applies)")
-                    return f"{key}.{name}", f"{how}: {name!r} has no effect; remove it (or scale the file)"
+                    return f"{key}.{name}", f"{how}: {name!r} has no effect; remove it (or use 'scale')"
     return None
 
 
