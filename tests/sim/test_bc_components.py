@@ -122,3 +122,46 @@ def test_chainmail_keeps_rollers_on_their_planes_and_lets_them_slide():
     assert np.abs(u[bottom, 2]).max() == 0.0
     assert np.allclose(u[top, 2], -0.03, atol=1e-15)
     assert np.abs(u[bottom][:, :2]).max() > 1e-3  # slid outwards where a clamp would hold them
+
+
+def test_scene_fixed_components_and_prescribed_normal_build_partial_constraints(scene_dict, write_scene):
+    """``fixed.components`` and ``prescribed.normal`` (tissuerender.scene.bc_schema) reach the model; a clamp stays a
+    clamp (kinematic), so old scenes build the same model."""
+    from tissuerender import load_scene
+    from tissuerender.bodies import build_body
+
+    body = scene_dict["objects"][0]
+    body["fixed"] = [{"side": "z_min", "components": ["z"]}, {"side": "x_min"}]
+    body["prescribed"] = [{"side": "z_max", "normal": [0.0, 0.0, 2.0], "displacement": [0.01, 0.0, -0.005],
+                           "t_end": 1.0}]
+    scene_dict["simulation"] = {"integrator": "xpbd"}
+    scene = load_scene(write_scene(scene_dict))
+    model = build_body(scene.objects[0], 0, scene).model
+    x_min = select.nodes_on_side(model.X, 0, "min")
+    assert np.array_equal(np.flatnonzero(model.kinematic_mask()), np.sort(x_min))
+    partial = model.partial()
+    z_min = select.nodes_on_side(model.X, 2, "min")
+    z_max = select.nodes_on_side(model.X, 2, "max")
+    expected = np.setdiff1d(np.union1d(z_min, z_max), x_min)
+    assert np.array_equal(partial.nodes, expected)
+    assert np.allclose(partial.P, np.diag([1.0, 1.0, 0.0]), atol=1e-15)
+    # the prescribed normal moves the top only along z, half-way at t = 0.5 s (the x part is not imposed)
+    top = np.isin(partial.nodes, z_max)
+    assert np.allclose(partial.at(0.5)[top] - partial.rest[top], [0.0, 0.0, -0.0025], atol=1e-15)
+
+
+@pytest.mark.parametrize("entry, message", [
+    ({"components": ["z"], "normal": [0.0, 0.0, 1.0]}, "either 'components' or 'normal'"),
+    ({"components": ["z", "z"]}, "lists a component twice"),
+    ({"normal": [0.0, 0.0, 0.0]}, "non-zero vector"),
+    ({"components": ["w"]}, "components"),
+])
+def test_bad_component_keys_exit_2_naming_the_key(scene_dict, write_scene, entry, message):
+    from tissuerender.errors import UserError
+    from tissuerender import load_scene
+
+    scene_dict["objects"][0]["fixed"] = [{"side": "z_min", **entry}]
+    with pytest.raises(UserError) as error:
+        load_scene(write_scene(scene_dict))
+    text = str(error.value)
+    assert "fixed" in text and message in text and "\n" not in text.strip()
