@@ -48,8 +48,8 @@ def test_a_probe_carrying_a_block_under_gravity_carries_its_weight():
 def test_probe_indentation_force_agrees_with_the_reference_reaction_within_2_percent():
     """A sphere (R = 0.2 m) indents a clamped 10 cm block by 5 mm and holds. The reference integrator, with the
     nodes the sphere touches prescribed at xpbd's positions for them, gives the reaction at those nodes (their
-    internal elastic forces: what the tissue exerts on the tool). Measured: xpbd 2.191 N, reference 2.199 N (-0.4 %,
-    xpbd's stable Neo-Hookean constraints not fully converged at 100 iterations)."""
+    internal elastic forces: what the tissue exerts on the tool). Measured: xpbd 2.177 N, reference 2.200 N (-1.05 %:
+    xpbd not fully converged at 50 iterations and 10 substeps; -0.4 % with 100 iterations and 80 steps of 0.01 s)."""
     mesh = procedural.box((0.1, 0.1, 0.1), (4, 4, 4))
     model = Model.from_mesh(mesh, E=1e4, nu=0.3, density=1000.0, constitutive="stable_neo_hookean")
     model.fixed[select.nodes_on_side(mesh.points, 2, "min")] = True
