@@ -1,5 +1,6 @@
 """Nodal accelerations for the explicit-type integrators (``explicit``, ``cnn``):
-``a = M^-1 (f_int(x) - D v + f_ext)`` on free nodes, zero on kinematic ones.
+``a = M^-1 (f_int(x) - D v + f_ext)`` on free nodes, zero on kinematic ones, projected on the free motion
+``P a`` on nodes held in some components only (``sim.model.PartialTargets``).
 
 Internal forces come from the shared constitutive library (``force_model = "constitutive"``, the
 model's own nonlinear material) or from the linear FEM stiffness ``f_int = -K (x - X)``
@@ -82,6 +83,7 @@ class Accelerations:
         self.inv_mass = np.where(model.mass > 0, 1.0 / np.maximum(model.mass, 1e-300), 0.0)
         self._kinematic_targets = model.kinematic()
         self.kinematic = self._kinematic_targets.nodes
+        self.partial = model.partial()  # nodes held in some components: accelerations projected on their free motion
         self.f_ext = model.nodal_external_force()
         extent = np.ptp(model.X, axis=0)
         self.blow_up = 100.0 * float(np.linalg.norm(extent)) + 1.0  # displacement that means divergence [m]
@@ -109,6 +111,7 @@ class Accelerations:
             f = f - self.beta * (self.K @ v.ravel()).reshape(v.shape)
         a = f * self.inv_mass[:, None]
         a[self.kinematic] = 0.0
+        self.partial.project(a)
         return a
 
     def _threads(self) -> int:
@@ -162,3 +165,5 @@ class Accelerations:
         target = self._kinematic_targets.at(t)
         v[idx] = (target - self._kinematic_targets.at(t - h)) / h
         x[idx] = target
+        self.partial.place(x, t)  # held components on their targets, free ones where the update put them
+        self.partial.velocity(v, t, h)

@@ -48,16 +48,92 @@ def ramp_fraction(t, t_start, t_end):
 
 @dataclass
 class PrescribedDisplacement:
-    """Nodes moved by ``displacement`` [m], ramped linearly from ``t_start`` to ``t_end`` [s]."""
+    """Nodes moved by ``displacement`` [m], ramped linearly from ``t_start`` to ``t_end`` [s].
+
+    ``held``: ``None`` (every component imposed: the nodes are kinematic) or ``(d, 3)`` directions (d = 1, 2) along
+    which alone the motion is imposed; the nodes move freely in the directions orthogonal to them (a roller or a
+    sliding face: ``held = [[0, 0, 1]]`` imposes z and leaves x, y free; a zero displacement with one ``held``
+    normal is a symmetry plane). See :class:`PartialTargets`."""
 
     nodes: np.ndarray
     displacement: np.ndarray
     t_start: float = 0.0
     t_end: float = 0.0
+    held: np.ndarray | None = None
 
     def fraction(self, t: float) -> float:
         return float(ramp_fraction(float(t), float(self.t_start), float(self.t_end)))
 
+
+def free_projector(directions: np.ndarray) -> np.ndarray:
+    """``P = I - Q Q^T`` (3, 3) with Q an orthonormal basis of the span of ``directions`` (d, 3): the motion a node
+    held along ``directions`` may still make. Rank-deficient sets (two parallel normals) hold their span once."""
+    directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    u, s, _ = np.linalg.svd(directions.T, full_matrices=True)
+    rank = int(np.sum(s > 1e-9 * max(float(s.max(initial=0.0)), 1e-300)))
+    Q = u[:, :rank]
+    return np.eye(3) - Q @ Q.T
+
+
+@dataclass(frozen=True)
+class PartialTargets:
+    """Nodes held in some components only (rollers, sliding faces, symmetry planes): node ``nodes[k]`` satisfies
+    ``(I - P[k]) (x - target_k(t)) = 0`` with the free-motion projector ``P[k]`` (:func:`free_projector` of every
+    direction its prescriptions hold) and ``target_k(t) = rest[k] + sum_g ramp_fraction(t, t_start[g], t_end[g])
+    Q_g Q_g^T d_g`` over the prescriptions g listing it (``Q_g``: an orthonormal basis of g's held directions, ``d_g``
+    its displacement; a node on a roller face and a symmetry plane takes its axial motion from the one and stays on
+    the other). A node fully held by a fixed region or a prescription without ``held`` is kinematic
+    (:class:`KinematicTargets`) and not listed here. Every integrator restricts these nodes through :meth:`place`
+    (positions) and :meth:`velocity`, or, for the implicit reference, through the basis :meth:`free_bases` of the
+    allowed motion."""
+
+    nodes: np.ndarray  # (k,) int64, increasing
+    P: np.ndarray  # (k, 3, 3) projector onto the free motion
+    rest: np.ndarray  # (k, 3) [m]
+    row: np.ndarray  # (p,) int64: the node (index into ``nodes``) of each (node, prescription) pair
+    group: np.ndarray  # (p,) int64: the prescription of each pair
+    displacement: np.ndarray  # (p, 3) [m]: Q_g Q_g^T d_g of each pair
+    t_start: np.ndarray  # (g,) [s] per prescription (all of the model's, full ones included)
+    t_end: np.ndarray  # (g,) [s]
+
+    @property
+    def empty(self) -> bool:
+        return self.nodes.size == 0
+
+    def at(self, t: float) -> np.ndarray:
+        """Targets (k, 3) [m] at time ``t``."""
+        target = self.rest.copy()
+        fraction = np.array([ramp_fraction(float(t), a, b) for a, b in zip(self.t_start, self.t_end)])
+        np.add.at(target, self.row, fraction[self.group][:, None] * self.displacement)
+        return target
+
+    def place(self, x: np.ndarray, t: float) -> None:
+        """Project the nodes of ``x`` (in place) onto their constraint at time ``t``: x = target + P (x - target)."""
+        if self.empty:
+            return
+        target = self.at(t)
+        x[self.nodes] = target + np.einsum("kij,kj->ki", self.P, x[self.nodes] - target)
+
+    def velocity(self, v: np.ndarray, t: float, h: float) -> None:
+        """Velocities (in place): free components kept, held ones moving with the target over the last step h."""
+        if self.empty:
+            return
+        target_speed = (self.at(t) - self.at(t - h)) / h
+        free = np.einsum("kij,kj->ki", self.P, v[self.nodes])
+        v[self.nodes] = free + target_speed - np.einsum("kij,kj->ki", self.P, target_speed)
+
+    def project(self, a: np.ndarray) -> None:
+        """Remove the held components of a nodal vector field (accelerations, position updates), in place."""
+        if not self.empty:
+            a[self.nodes] = np.einsum("kij,kj->ki", self.P, a[self.nodes])
+
+    def free_bases(self) -> list[np.ndarray]:
+        """Per node an orthonormal basis (3, r) of its free motion (r = rank P: 2 on a plane, 1 on a line, 0)."""
+        bases = []
+        for P in self.P:
+            w, V = np.linalg.eigh(P)
+            bases.append(np.ascontiguousarray(V[:, w > 0.5]))
+        return bases
 
 @dataclass(frozen=True)
 class KinematicTargets:
@@ -101,7 +177,7 @@ class Model:
     constitutive : name of the constitutive model (see ``sim.constitutive``).
     material_params : model-specific extras (e.g. ``eta`` for the fibre term, Prony terms).
     fixed : (n,) bool, nodes held at their rest position.
-    prescribed : displacement ramps applied to node sets.
+    prescribed : displacement ramps applied to node sets (all components, or only along ``held`` directions).
     gravity : (3,) [m/s^2].
     pressure : "element" (standard linear tets) or "anp" (average nodal pressure against locking).
     external_force : (n, 3) constant nodal forces [N] (surface tractions integrated on faces).
@@ -180,15 +256,18 @@ class Model:
         return int(self.tets.shape[0])
 
     def inverse_mass(self) -> np.ndarray:
-        """``1/m`` per node, zero for fixed and prescribed nodes (they are kinematic)."""
+        """``1/m`` per node, zero for fixed and prescribed nodes (they are kinematic; nodes held in some components
+        only keep their mass: :class:`PartialTargets` restricts them)."""
         w = np.where(self.mass > 0.0, 1.0 / np.maximum(self.mass, 1e-300), 0.0)
         w[self.kinematic_mask()] = 0.0
         return w
 
     def kinematic_mask(self) -> np.ndarray:
+        """Nodes held in every component: fixed, or prescribed without ``held`` directions."""
         mask = np.zeros(self.n_nodes, dtype=bool) if self.fixed is None else self.fixed.copy()
         for p in self.prescribed:
-            mask[p.nodes] = True
+            if p.held is None:
+                mask[p.nodes] = True
         return mask
 
     def kinematic(self) -> KinematicTargets:
@@ -197,11 +276,45 @@ class Model:
         group = np.full(self.n_nodes, -1, np.int64)
         displacement = np.zeros((self.n_nodes, 3))
         for g, p in enumerate(self.prescribed):
+            if p.held is not None:
+                continue
             group[p.nodes] = g
             displacement[p.nodes] = np.asarray(p.displacement, dtype=np.float64)
         return KinematicTargets(
             nodes=nodes, rest=np.ascontiguousarray(self.X[nodes], dtype=np.float64),
             group=np.ascontiguousarray(group[nodes]), displacement=np.ascontiguousarray(displacement[nodes]),
+            t_start=np.array([float(p.t_start) for p in self.prescribed], dtype=np.float64),
+            t_end=np.array([float(p.t_end) for p in self.prescribed], dtype=np.float64))
+
+    def partial(self) -> PartialTargets:
+        """The nodes held in some components only (prescriptions with ``held`` directions, not otherwise kinematic)."""
+        kinematic = self.kinematic_mask()
+        directions: dict[int, list] = {}
+        pairs = []  # (node, prescription, displacement along the held directions)
+        for g, p in enumerate(self.prescribed):
+            if p.held is None:
+                continue
+            held = np.asarray(p.held, dtype=np.float64).reshape(-1, 3)
+            along = (np.eye(3) - free_projector(held)) @ np.asarray(p.displacement, dtype=np.float64)
+            for i in np.asarray(p.nodes).reshape(-1).tolist():
+                if not kinematic[i]:
+                    directions.setdefault(i, []).append(held)
+                    pairs.append((i, g, along))
+        nodes = np.array(sorted(directions), dtype=np.int64)
+        row_of = {i: k for k, i in enumerate(nodes.tolist())}
+        projectors = {}
+        P = np.empty((nodes.size, 3, 3))
+        for k, i in enumerate(nodes.tolist()):
+            held = np.concatenate(directions[i])
+            key = held.tobytes()
+            if key not in projectors:
+                projectors[key] = free_projector(held)
+            P[k] = projectors[key]
+        return PartialTargets(
+            nodes=nodes, P=P, rest=np.ascontiguousarray(self.X[nodes], dtype=np.float64),
+            row=np.array([row_of[i] for i, _, _ in pairs], dtype=np.int64),
+            group=np.array([g for _, g, _ in pairs], dtype=np.int64),
+            displacement=np.array([d for _, _, d in pairs], dtype=np.float64).reshape(-1, 3),
             t_start=np.array([float(p.t_start) for p in self.prescribed], dtype=np.float64),
             t_end=np.array([float(p.t_end) for p in self.prescribed], dtype=np.float64))
 

@@ -1,7 +1,10 @@
 """Rigid tools: a sphere or capsule following a keyframed path, pushing tissue nodes out of itself.
 
 Contact is resolved by projection (a unilateral position constraint, as in PBD): a node found inside
-the probe is moved to the nearest point of its surface. Integrators call it every substep with the
+the probe is moved to the nearest point of its surface. :func:`resolve_contact_load` does the same and sums what
+the projection did, ``sum_i m_i dx_i`` and ``sum_i (p_i - c) x m_i dx_i`` (``p_i`` the node's new position on the
+surface, ``c`` the tool's centre): divided by the substep squared, the contact force and torque the tool exerts on
+the tissue (the impulse ``m dx / h`` per substep h, Macklin et al. 2016 eq. 9: ``f = lambda grad C / h^2``). Integrators call it every substep with the
 probe at the substep's time, so a probe moving less than its radius per substep cannot pass
 through a node (no tunnelling at the speeds used in ``scenes/``).
 """
@@ -74,3 +77,48 @@ def resolve_contact(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray)
     """Project the free nodes of ``x`` (in place) out of ``probe`` at time ``t``; returns how many moved."""
     a, b = probe.segment(t)
     return int(push_out_of_capsule(x, inv_mass, a, b, float(probe.radius)))
+
+
+@njit(cache=True)
+def push_out_of_capsule_load(x, inv_mass, a, b, radius, centre, load):
+    """:func:`push_out_of_capsule`, adding to ``load`` (6,) ``sum m dx`` [kg m] of the nodes it moves (``load[:3]``)
+    and their moment ``sum (p - centre) x m dx`` about ``centre`` (``load[3:]``), p the node's new position."""
+    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    len2 = ab0 * ab0 + ab1 * ab1 + ab2 * ab2
+    moved = 0
+    for i in range(x.shape[0]):
+        if inv_mass[i] == 0.0:
+            continue
+        ap0, ap1, ap2 = x[i, 0] - a[0], x[i, 1] - a[1], x[i, 2] - a[2]
+        s = 0.0
+        if len2 > 0.0:
+            s = min(max((ap0 * ab0 + ap1 * ab1 + ap2 * ab2) / len2, 0.0), 1.0)
+        c0, c1, c2 = a[0] + s * ab0, a[1] + s * ab1, a[2] + s * ab2
+        d0, d1, d2 = x[i, 0] - c0, x[i, 1] - c1, x[i, 2] - c2
+        dist = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        if dist < radius:
+            if dist < 1e-12:  # at the axis: push along +z, as push_out_of_capsule
+                d0, d1, d2, dist = 0.0, 0.0, 1.0, 1.0
+            scale = radius / dist
+            m = 1.0 / inv_mass[i]
+            p0, p1, p2 = c0 + d0 * scale, c1 + d1 * scale, c2 + d2 * scale
+            j0, j1, j2 = m * (p0 - x[i, 0]), m * (p1 - x[i, 1]), m * (p2 - x[i, 2])
+            r0, r1, r2 = p0 - centre[0], p1 - centre[1], p2 - centre[2]
+            load[0] += j0
+            load[1] += j1
+            load[2] += j2
+            load[3] += r1 * j2 - r2 * j1
+            load[4] += r2 * j0 - r0 * j2
+            load[5] += r0 * j1 - r1 * j0
+            x[i, 0] = p0
+            x[i, 1] = p1
+            x[i, 2] = p2
+            moved += 1
+    return moved
+
+
+def resolve_contact_load(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray, load: np.ndarray) -> int:
+    """:func:`resolve_contact`, summing into ``load`` (6,) the mass-weighted displacement and its moment about the
+    probe's centre at ``t`` (:func:`push_out_of_capsule_load`)."""
+    a, b = probe.segment(t)
+    return int(push_out_of_capsule_load(x, inv_mass, a, b, float(probe.radius), probe.position(t), load))

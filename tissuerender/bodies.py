@@ -1,10 +1,11 @@
 """From scene objects to simulation models and render surfaces.
 
 A *body* is a tet mesh (procedural or from a file) with a :class:`sim.model.Model` built from its
-material preset, fixed regions, prescribed displacements and surface tractions, and a render surface
-embedded in its tets by barycentric coordinates so it follows the deformation. The render surface of an
-organ shape is a smooth contour of its SDF, that of a closed surface file the file's own triangles (the
-tets only approximate them), otherwise the tets' boundary. A *static surface* is
+material preset, fixed regions, prescribed displacements (either held in every component or in some only:
+``tissuerender.scene.bc_schema``) and surface tractions, and a render surface embedded in its tets by
+barycentric coordinates so it follows the deformation. The render surface of an organ shape is a smooth
+contour of its SDF, that of a closed surface file the file's own triangles (the tets only approximate
+them), otherwise the tets' boundary. A *static surface* is
 a triangle mesh loaded from a file and rendered with its own vertex normals.
 """
 from __future__ import annotations
@@ -127,12 +128,17 @@ def build_model(obj: ObjectSpec, index: int, mesh: TetMesh, scene: Scene, bounda
         nodes = region_nodes(mesh.points, region)
         if nodes.size == 0:
             raise SceneError(scene.path, f"{key}.fixed[{j}]", "expected the region to contain nodes, found none")
-        model.fixed[nodes] = True
+        held = region.held_directions()
+        if held is None:
+            model.fixed[nodes] = True
+        else:  # held in some components only: a zero displacement along them (sim.model.PartialTargets)
+            model.prescribed.append(PrescribedDisplacement(nodes, np.zeros(3), held=held))
     for j, pres in enumerate(obj.prescribed):
         nodes = region_nodes(mesh.points, pres)
         if nodes.size == 0:
             raise SceneError(scene.path, f"{key}.prescribed[{j}]", "expected the region to contain nodes, found none")
-        model.prescribed.append(PrescribedDisplacement(nodes, np.asarray(pres.displacement), pres.t_start, pres.t_end))
+        model.prescribed.append(PrescribedDisplacement(nodes, np.asarray(pres.displacement), pres.t_start, pres.t_end,
+                                                       pres.held_directions()))
     if obj.tractions:
         force = np.zeros((mesh.n_points, 3))
         for j, tr in enumerate(obj.tractions):

@@ -31,7 +31,7 @@ from tissuerender.renderer import render_frame
 from tissuerender.render_inputs import camera_for, lens_for, light_for, render_objects, settings_for
 from tissuerender.scene import Scene
 from tissuerender.stages import StageRecorder, recorder_or_new
-from tissuerender.world import World, advance
+from tissuerender.world import ToolForceLog, World, advance
 
 
 def frame_name(index: int, ext: str = "png") -> str:
@@ -131,10 +131,12 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
     written, skipped = [], []
     previous = None
     backend_used = None
+    tool_forces = ToolForceLog(scene) if "contact" in plan else None  # OUT/tool_forces.csv (tissuerender.world)
 
     def record(extra: dict) -> dict:
+        forces = {} if tool_forces is None else {"tool_forces": tool_forces.summary()}
         data = manifest(scene, plan, recorder, formats, n_frames, done, time.perf_counter() - start,
-                        {"postfx_backend": backend_used, **extra})
+                        {"postfx_backend": backend_used, **forces, **extra})
         write_json(out / "manifest.json", data)
         return data
 
@@ -147,6 +149,9 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
         for k in range(1, n_frames + 1):
             if k > 1 and "simulate" in plan:
                 advance(world, scene, recorder)
+            if tool_forces is not None:
+                tool_forces.record(k, (k - 1) / scene.output.fps, world)
+                tool_forces.write(out)
             if k in done:
                 skipped.append(out / frame_name(k))
                 if "velocity_channel" in plan:

@@ -2,7 +2,9 @@
 built once from the scene and advanced one frame interval at a time."""
 from __future__ import annotations
 
+import io
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -12,6 +14,7 @@ from sim.model import State
 from sim.probe import Probe
 from tissuerender.bodies import Body, StaticSurface, build_body, build_static_surface
 from tissuerender.errors import UserError
+from tissuerender.files import write_atomic
 from tissuerender.plan import Plan
 from tissuerender.scene import Scene
 from tissuerender.stages import StageRecorder
@@ -30,6 +33,9 @@ class World:
     integrators: list = field(default_factory=list)
     states: list = field(default_factory=list)
     frames_advanced: int = 0  # frame intervals simulated so far: the states are at time frames_advanced / fps
+    # (tools, 6): force [N] and torque [N m] about its centre the tissue exerted on each tool, mean over the last frame
+    # interval, summed over bodies; NaN where a body's integrator reports no contact forces (only xpbd does)
+    tool_loads: np.ndarray | None = None
 
 
 def build_world(scene: Scene, plan: Plan, recorder: StageRecorder) -> World:
@@ -41,6 +47,8 @@ def build_world(scene: Scene, plan: Plan, recorder: StageRecorder) -> World:
         with recorder.run("load_surface"):
             surfaces = [build_static_surface(o, i, scene) for i, o in enumerate(scene.objects) if o.kind == "surface"]
     world = World(bodies, surfaces)
+    if "contact" in plan:
+        world.tool_loads = np.zeros((len(scene.tools), 6))
     if "simulate" in plan:
         probes = [make_probe(t) for t in scene.tools] if "contact" in plan else []
         sim = scene.simulation
@@ -74,6 +82,7 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
     fps = scene.output.fps
     f = world.frames_advanced
     n = scene.steps_per_frame
+    loads = None if world.tool_loads is None else np.zeros_like(world.tool_loads)
     with recorder.run("simulate"):
         for i, integrator in enumerate(world.integrators):
             name = world.bodies[i].spec.name
@@ -89,6 +98,9 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
                     ) from None
                 state.t = (f + 1) / fps if j == n - 1 else f / fps + (j + 1) * dt
                 world.states[i] = state
+                if loads is not None:
+                    step_loads = getattr(integrator, "tool_loads", None)
+                    loads += np.nan if step_loads is None else step_loads / n
                 bad = ~np.isfinite(state.x).all(axis=1)
                 if bad.any():
                     raise SimulationFailed(
@@ -96,3 +108,59 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
                         f"produced non-finite positions at {int(bad.sum())} of {bad.size} nodes (first: node "
                         f"{int(np.flatnonzero(bad)[0])}) at t = {state.t:.4g} s. Try a smaller simulation.dt or more substeps.")
     world.frames_advanced = f + 1
+    if loads is not None:
+        world.tool_loads = loads
+
+
+TOOL_FORCES_CSV = "tool_forces.csv"
+TOOL_FORCE_COLUMNS = ("frame", "time", "tool", "fx", "fy", "fz", "tx", "ty", "tz")
+
+
+def _finite(values) -> list:
+    """JSON numbers, None for NaN (JSON has no NaN)."""
+    return [float(v) if np.isfinite(v) else None for v in values]
+
+
+class ToolForceLog:
+    """Per frame and tool, the force [N] and torque [N m] (about the tool's centre) the tissue exerts on it: the mean
+    over the frame interval ending at the frame's time (frame 1, t = 0: nothing simulated yet, zero). Kept in memory
+    and written whole, atomically, after every frame to ``OUT/tool_forces.csv``; the simulation runs through the
+    frames a resumed render skips, so their rows are recomputed and the file is complete after a resume too.
+    Integrators other than xpbd resolve no tool contact forces: NaN."""
+
+    def __init__(self, scene: Scene):
+        self.names = [t.name for t in scene.tools]
+        self.rows: dict[int, tuple[float, np.ndarray]] = {}
+
+    def record(self, frame: int, t: float, world: World) -> None:
+        loads = np.zeros((len(self.names), 6)) if frame == 1 else world.tool_loads
+        self.rows[frame] = (t, np.array(loads, dtype=np.float64))
+
+    def write(self, out: Path) -> None:
+        text = io.StringIO()
+        text.write(",".join(TOOL_FORCE_COLUMNS) + "\n")
+        for frame in sorted(self.rows):
+            t, loads = self.rows[frame]
+            for name, load in zip(self.names, loads):
+                text.write(f"{frame},{t!r},{name}," + ",".join(repr(float(v)) for v in load) + "\n")
+        data = text.getvalue().encode()
+        write_atomic(out / TOOL_FORCES_CSV, lambda tmp: Path(tmp).write_bytes(data))
+
+    def summary(self) -> dict:
+        """For the manifest: the file, sign and units, and per tool the last frame's and the peak force."""
+        tools = {}
+        for k, name in enumerate(self.names):
+            frames = sorted(self.rows)
+            if not frames:
+                continue
+            force = {f: self.rows[f][1][k] for f in frames}
+            magnitude = {f: float(np.linalg.norm(force[f][:3])) for f in frames}
+            finite = [f for f in frames if np.isfinite(magnitude[f])]
+            peak = max(finite, key=lambda f: magnitude[f]) if finite else frames[-1]
+            tools[name] = {"last_frame": frames[-1], "last_force_N": _finite(force[frames[-1]][:3]),
+                           "last_torque_Nm": _finite(force[frames[-1]][3:]),
+                           "peak_frame": peak, "peak_force_N": _finite([magnitude[peak]])[0]}
+        return {"file": TOOL_FORCES_CSV, "columns": list(TOOL_FORCE_COLUMNS),
+                "meaning": "force [N] and torque [N m] about the tool's centre that the tissue exerts on the tool, "
+                           "mean over the frame interval ending at the frame's time; NaN: the integrator resolves no "
+                           "contact forces", "tools": tools}

@@ -49,9 +49,8 @@ def zhang_cylinder(h: float = 0.125, displacement: float = 0.4, constitutive: st
     left = select.nodes_on_side(mesh.points, 2, "min")
     right = select.nodes_on_side(mesh.points, 2, "max")
     model.fixed[left] = True
-    if slide:
-        raise NotImplementedError("a sliding face needs per-component constraints (not in the model yet)")
-    model.prescribed.append(PrescribedDisplacement(right, np.array([0.0, 0.0, displacement]), 0.0, ramp_time))
+    held = np.array([[0.0, 0.0, 1.0]]) if slide else None  # a roller face: only the axial component imposed
+    model.prescribed.append(PrescribedDisplacement(right, np.array([0.0, 0.0, displacement]), 0.0, ramp_time, held))
     line, coord = _line_nodes(mesh.points, {1: 0.0, 0: 0.5}, 2, 0.25 * h)
     kind = "extension" if displacement > 0 else "compression"
     return Case(f"cylinder_{kind}", model, line, coord, ramp_time)

@@ -28,7 +28,8 @@ It has no mass, stiffness or forces: it moves nodes only as far as the strain li
 plausible, not mechanical. Models with external forces or gravity are rejected (use the
 prescribed displacements of a probe or a ramp instead). Velocities are the position change over dt.
 
-Probes (``model.probes``) are input displacements too: nodes inside a tool are pushed to its surface
+Cells held in some components only (rollers, sliding faces: ``sim.model.PartialTargets``) are put back on their
+constraint after every sweep. Probes (``model.probes``) are input displacements too: nodes inside a tool are pushed to its surface
 before the sweeps and after each one.
 
 | name | default | unit | range | equation |
@@ -115,6 +116,7 @@ class CNNChainMail:
         self.edges = mesh_edges(model.tets)
         self.l0, self.l_min, self.l_max = strain_limits(model.X, self.edges, self.alpha, lo, hi)
         self.fixed_state = model.kinematic_mask()
+        self.partial = model.partial()  # cells held in some components: put back on their constraint after each sweep
         self.inv_mass = model.inverse_mass()  # zero on kinematic nodes: probes do not move them
         self.last_sweeps = 0
         self.last_violation = 0.0
@@ -147,6 +149,7 @@ class CNNChainMail:
             x = x + delta * step[:, None]
             for probe in self.model.probes:
                 resolve_contact(x, probe, t, self.inv_mass)
+            self.partial.place(x, t)
         self.last_sweeps, self.last_violation = self.iterations, self.violation(x)
         return x
 
@@ -157,6 +160,7 @@ class CNNChainMail:
             t += h
             idx, target = self.model.kinematic_targets(t)
             x[idx] = target  # the input displacement (current source, §3.4.3) and the fixed cells
+            self.partial.place(x, t)
             for probe in self.model.probes:
                 resolve_contact(x, probe, t, self.inv_mass)
             x = self.relax(x, t)

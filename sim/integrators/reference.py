@@ -2,7 +2,8 @@
 Newton's method with a backtracking line search and a sparse direct solve (scipy).
 
 Each step minimises the incremental potential over the free nodes (kinematic nodes are placed at
-their targets and eliminated)::
+their targets and eliminated; nodes held in some components only are placed on their constraint and solved for in
+the basis of their free motion, ``x = x_0 + T y``, which eliminates the held components)::
 
     dynamic:      Phi(x) = 1/(2 h^2) (x - x~)^T M (x - x~) + E(x) - f_ext . x,   x~ = x_n + h v_n
     quasistatic:  Phi(x) = E(x) - f_ext . x
@@ -82,6 +83,8 @@ class ReferenceIntegrator:
         self.rows = np.repeat(idx, 12, axis=1).ravel()
         self.cols = np.tile(idx, (1, 12)).ravel()
         self.mass_dof = np.repeat(m.mass, 3)
+        self.partial = model.partial()  # nodes held in some components: solved for in their free-motion basis
+        self._basis = None
         self.last_iterations = 0
         self.last_residual = np.inf
 
@@ -173,6 +176,8 @@ class ReferenceIntegrator:
         free = np.ones(3 * m.n_nodes, dtype=bool)
         free[(kin[:, None] * 3 + np.arange(3)).ravel()] = False
         f_ext = m.nodal_external_force()
+        if not self.partial.empty:
+            return self._solve_reduced(x, x_tilde, h, t, free, f_ext)
         g_all = self._grad(x, x_tilde, h, f_ext).ravel()
         g = g_all[free]
         # force scale of the problem: the start residual, the loads and the boundary reactions (so a
@@ -218,6 +223,83 @@ class ReferenceIntegrator:
                 raise SimulationDiverged(f"reference: line search failed at t = {t:.6g} s (iteration {it})")
             x, phi = trial, phi_trial
             g = self._grad(x, x_tilde, h, f_ext).ravel()[free]
+        self.last_iterations, self.last_residual = self.max_newton, float(np.linalg.norm(g) / scale)
+        if self.last_residual > 1e3 * self.tol:
+            raise SimulationDiverged(f"reference: Newton did not converge at t = {t:.6g} s "
+                                     f"(relative gradient {self.last_residual:.2e} after {self.max_newton} iterations)")
+        return x
+
+    def _free_basis(self, free):
+        """``T`` (3n, r) sparse: the motions the unknowns may make. Unit columns for the dofs of free nodes, the
+        orthonormal basis of the free motion (``PartialTargets.free_bases``) for nodes held in some components; a
+        Newton step is ``dx = T dy`` and the reduced system ``T^T K T dy = -T^T g`` (the held components
+        eliminated)."""
+        if self._basis is None:
+            p = self.partial
+            is_partial = np.zeros(self.model.n_nodes, dtype=bool)
+            is_partial[p.nodes] = True
+            rows, cols, vals = [], [], []
+            col = 0
+            bases = dict(zip(p.nodes.tolist(), p.free_bases()))
+            for i in range(self.model.n_nodes):
+                if is_partial[i]:
+                    Q = bases[i]
+                    for r in range(Q.shape[1]):
+                        rows += [3 * i, 3 * i + 1, 3 * i + 2]
+                        cols += [col] * 3
+                        vals += Q[:, r].tolist()
+                        col += 1
+                else:
+                    for k in range(3):
+                        if free[3 * i + k]:
+                            rows.append(3 * i + k)
+                            cols.append(col)
+                            vals.append(1.0)
+                            col += 1
+            self._basis = sp.csr_matrix((vals, (rows, cols)), shape=(3 * self.model.n_nodes, col))
+        return self._basis
+
+    def _solve_reduced(self, x, x_tilde, h, t, free, f_ext):
+        """:meth:`solve` with nodes held in some components: Newton in the coordinates ``y`` of ``x = x_0 + T y``
+        (:meth:`_free_basis`), the same convergence test and line search on the reduced gradient ``T^T g``."""
+        self.partial.place(x, t)
+        T = self._free_basis(free)
+        Tt = T.T.tocsr()
+        g_all = self._grad(x, x_tilde, h, f_ext).ravel()
+        g = Tt @ g_all
+        reactions = g_all - T @ g  # the held components' (and kinematic nodes') share of the gradient
+        scale = np.linalg.norm(g) + np.linalg.norm(Tt @ f_ext.ravel()) + np.linalg.norm(reactions) + 1e-12
+        phi = self._phi(x, x_tilde, h, f_ext)
+        for it in range(self.max_newton):
+            gnorm = np.linalg.norm(g)
+            if gnorm <= self.tol * scale:
+                self.last_iterations, self.last_residual = it, float(gnorm / scale)
+                return x
+            dy = None
+            for project in ((True, False) if gnorm > 1e-3 * scale else (False, True)):
+                K = (Tt @ self._hessian(x, h, project) @ T).tocsc()
+                K = K + sp.diags(np.full(K.shape[0], 1e-12 * max(abs(K.diagonal()).max(), 1e-300)))
+                candidate = -spsolve(K.tocsc(), g)
+                if np.isfinite(candidate).all() and float(g @ candidate) < 0.0:
+                    dy = candidate
+                    break
+            if dy is None:
+                raise SimulationDiverged(f"reference: no descent direction at t = {t:.6g} s (iteration {it})")
+            dx = (T @ dy).reshape(x.shape)
+            step = 1.0
+            for _ in range(40):
+                trial = x + step * dx
+                phi_trial = self._phi(trial, x_tilde, h, f_ext)
+                if np.isfinite(phi_trial) and phi_trial <= phi + 1e-4 * step * float(g @ dy):
+                    break
+                if np.isfinite(phi_trial) and abs(phi_trial - phi) <= 1e-8 * (abs(phi) + 1e-300):
+                    if np.linalg.norm(Tt @ self._grad(trial, x_tilde, h, f_ext).ravel()) < 0.5 * gnorm:
+                        break
+                step *= 0.5
+            else:
+                raise SimulationDiverged(f"reference: line search failed at t = {t:.6g} s (iteration {it})")
+            x, phi = trial, phi_trial
+            g = Tt @ self._grad(x, x_tilde, h, f_ext).ravel()
         self.last_iterations, self.last_residual = self.max_newton, float(np.linalg.norm(g) / scale)
         if self.last_residual > 1e3 * self.tol:
             raise SimulationDiverged(f"reference: Newton did not converge at t = {t:.6g} s "

@@ -58,6 +58,7 @@ SECTIONS: tuple[Section, ...] = (
     Section("objects.override", schema.MaterialOverride),
     Section("objects.optics", schema.OpticsOverride),
     Section("region", schema.Region),
+    Section("objects.fixed", schema.FixedRegion, base=schema.Region),
     Section("objects.prescribed", schema.Prescribed, base=schema.Region),
     Section("objects.tractions", schema.Traction, base=schema.Region),
     Section("objects.paint", schema.PaintStroke),

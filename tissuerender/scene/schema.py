@@ -21,6 +21,7 @@ from sim.integrators.reference import ReferenceSceneSettings
 from sim.integrators.xpbd.settings import XPBDSceneSettings
 
 from tissuerender.scene.camera_schema import CameraKeyframe, CameraLens, check_path, degenerate_view
+from tissuerender.scene.bc_schema import HeldComponents
 from tissuerender.scene.shapes import SHAPES
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -64,7 +65,11 @@ class Region(Strict):
         return self
 
 
-class Prescribed(Region):
+class FixedRegion(Region, HeldComponents):
+    """A region whose nodes are held at rest (in every component, or in some: ``tissuerender.scene.bc_schema``)."""
+
+
+class Prescribed(Region, HeldComponents):
     """Nodes of a region moved by ``displacement`` [m], ramped linearly from t_start to t_end [s]."""
 
     displacement: Annotated[Vec3, Field(description="displacement of the region's nodes [m]")]
@@ -158,7 +163,7 @@ class ObjectSpec(Strict):
     override: MaterialOverride | None = Field(None, description="body: replace the preset's mechanics (table below)")
     optics: OpticsOverride | None = Field(None, description=(
         "replace optical values of the preset (table below); tissuerender lookdev prints the table for a look"))
-    fixed: list[Region] = Field([], description="body: regions whose nodes are held at rest")
+    fixed: list[FixedRegion] = Field([], description="body: regions whose nodes are held at rest (table below)")
     prescribed: list[Prescribed] = Field([], description="body: regions moved by a displacement ramp (table below)")
     tractions: list[Traction] = Field([], description="body: regions loaded by a constant traction (table below)")
     paint: Annotated[list[PaintStroke], Field(max_length=1000)] = Field([], description=(

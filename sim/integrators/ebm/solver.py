@@ -24,6 +24,8 @@ and Psi by their relaxed values (5.29–5.32, ``sim.constitutive.prony``); the h
 The relative energy difference ``RED = |W_ext - W_strain| / W_ext`` is recorded per step in
 ``red_history``: W_ext is the work done on the body by the reactions at prescribed nodes and by
 external forces (trapezoidal in time), W_strain the stored strain energy.
+Nodes held in some components only (``sim.model.PartialTargets``) are projected onto their constraint after every
+iteration (with the scalar kernel: a model with such nodes does not take the blocked one).
 Parameters: :class:`sim.integrators.ebm.settings.EBMSettings` (the table of its module docstring). ``kernel``:
 "blocked" (default: each substep in one compiled call with the per-tet work vectorised across tets,
 ``sim.integrators.ebm.blocked_step``); "numba": the scalar per-tet kernel of ``sim.integrators.ebm.kernels``, which
@@ -74,6 +76,11 @@ class EBM:
         self.substeps = settings.substeps
         self.update = settings.update
         self.kernel = settings.kernel if model.constitutive in MATERIALS else "numpy"
+        self.partial = model.partial()
+        if not self.partial.empty and self.kernel == "blocked":
+            # nodes held in some components are projected onto their constraint after every iteration, which the
+            # blocked kernel (all iterations in one compiled call) cannot do: the scalar kernel, one call per iteration
+            self.kernel = "numba"
         self.precision = settings.precision
         if self.precision == "float32" and (self.kernel != "blocked" or model.material_params.get("prony")
                                             or model.constitutive not in ("neo_hookean", "anisotropic_neo_hookean")):
@@ -236,7 +243,7 @@ class EBM:
             np.add.at(f, self.model.tets[:, a], -grads[:, a])
         return f
 
-    def _iterate(self, x, h):
+    def _iterate(self, x, h, t=0.0):
         if self.kernel == "blocked":
             x = np.ascontiguousarray(x, dtype=np.float64)
             _, (a, _, _) = self._relaxation(h)
@@ -255,9 +262,13 @@ class EBM:
         if self.kernel == "numba":
             x = np.ascontiguousarray(x)
             prony, (a, Gamma, g) = self._relaxation(h)
-            done = ebm_kernels.ebm_iterations(x, self._dx, self._tets, self._Dm_inv, self._volume, self._mu,
-                                              self._lam, self._eta, self._fibre, self._code, self._w,
-                                              self._node_scale, prony, a, Gamma, g, self.iterations)
+            calls, per_call = (1, self.iterations) if self.partial.empty else (self.iterations, 1)
+            done = 0
+            for _ in range(calls):
+                done += ebm_kernels.ebm_iterations(x, self._dx, self._tets, self._Dm_inv, self._volume, self._mu,
+                                                   self._lam, self._eta, self._fibre, self._code, self._w,
+                                                   self._node_scale, prony, a, Gamma, g, per_call)
+                self.partial.place(x, t)
             if done < self.iterations:
                 raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
             return x
@@ -272,6 +283,7 @@ class EBM:
             for a in range(4):
                 np.add.at(dx, tets[:, a], -(wt[:, a] * lam)[:, None] * grads[:, a])
             x += dx * self.node_scale[:, None]
+            self.partial.place(x, t)
             if not np.isfinite(x).all():
                 raise SimulationDiverged("ebm: non-finite positions during the energy-balance iterations")
         return x
@@ -290,7 +302,8 @@ class EBM:
             kin, target = m.kinematic_targets(t)
             x_kin_before = x_old[kin]
             x[kin] = target
-            x = self._iterate(x, h)  # 5.7-5.9, 5.14
+            self.partial.place(x, t)
+            x = self._iterate(x, h, t)  # 5.7-5.9, 5.14
             v = (x - x_old) / h  # 5.15 (our reading)
             stretch = self._account_energy(x, x_old, kin, x_kin_before, h)
             self._check_stretch(stretch, t)
@@ -337,6 +350,9 @@ class EBM:
         f_int, strain, stretch = self._forces_and_energy(x, h)
         load = np.zeros_like(x)
         load[kin] = -f_int[kin]  # the reaction the prescribed nodes exert on the body
+        if not self.partial.empty:  # and the held components' reaction at nodes held in some components only
+            p = self.partial
+            load[p.nodes] = -(f_int[p.nodes] - np.einsum("kij,kj->ki", p.P, f_int[p.nodes]))
         load += self.f_ext
         dx = x - x_old
         previous = self._last_load_force

@@ -13,7 +13,9 @@ swept concurrently, ``sim.integrators.xpbd.colouring.split_into_domains``, and a
 vectorised blocks, ``sim.integrators.xpbd.blocked``), project
 ``dlambda = (-C - alpha~ lambda) / (sum_i w_i |grad_i C|^2 + alpha~)``, ``alpha~ = alpha / dt^2``,
 ``x_i += w_i grad_i C dlambda`` (Qian 4.42–4.44; its eq. 4.22 gradient typo: docs/design.md, "Qian 4.22: strain-constraint gradient");
-then tool contact, then ``v = (x - x_prev) / dt``. The ``jacobi`` solver averages the corrections of all
+then tool contact, then the nodes held in some components only are projected back onto their constraint
+(``sim.model.PartialTargets``), then ``v = (x - x_prev) / dt``. ``tool_loads``: the force and torque the tissue
+exerted on each probe over the last step (minus the contact impulses over the step, ``sim.probe``). The ``jacobi`` solver averages the corrections of all
 tets per iteration (with relaxation) instead.
 
 Strain limits on Green-strain entries in a material frame (Qian 4.21–4.22, stretch and shear,
@@ -35,7 +37,7 @@ from sim.integrators.xpbd.prony import MaxwellBranches
 from sim.integrators.xpbd.settings import XPBDSettings, limit_boxes
 from sim.integrators.xpbd.strain import GreenStrainLimits
 from sim.model import Model, State
-from sim.probe import resolve_contact
+from sim.probe import resolve_contact_load
 
 
 class TetConstraints:
@@ -105,6 +107,7 @@ class XPBD:
     (``material_params["prony"]``) gets one more constraint set per term (``sim.integrators.xpbd.prony``)."""
 
     name = "xpbd"
+    tool_loads: np.ndarray | None = None  # (probes, 6): force [N] and torque [N m] on each tool, last step
 
     def __init__(self, model: Model, settings: XPBDSettings | dict | None = None):
         settings = XPBDSettings.of(settings)
@@ -161,6 +164,7 @@ class XPBD:
         self.green_limits = (GreenStrainLimits(m, order, self.colour_start, settings)
                              if limit_boxes(settings) is not None else None)
         self.kinematic = m.kinematic()
+        self.partial = m.partial()  # nodes held in some components: projected onto their constraint after each sweep
         counts = np.bincount(self.tets.ravel(), minlength=m.n_nodes).astype(np.float64)
         self.tet_scale = self.relaxation / counts[self.tets].max(axis=1)
         self.f_ext_acc = m.nodal_external_force() * np.where(self.w > 0, self.w, 0.0)[:, None]
@@ -174,13 +178,17 @@ class XPBD:
         t = state.t
         # with probes, limits or several constraint sets, those are visited after every sweep; else
         # one kernel call does all the iterations
-        per_sweep = bool(m.probes) or self.strain_limits is not None or self.green_limits is not None
+        per_sweep = (bool(m.probes) or self.strain_limits is not None or self.green_limits is not None
+                     or not self.partial.empty)
         per_call = 1 if per_sweep or len(self.sets) > 1 else self.iterations
+        loads = np.zeros((len(m.probes), 6))  # per probe: sum of m dx and its moment, over this step
+        substep_load = np.zeros(6)
         for _ in range(self.substeps):
             t_next = t + h
             x_prev = x.copy()
             x += h * v + h * h * self.f_ext_acc
             x[self.kinematic.nodes] = self.kinematic.at(t_next)
+            self.partial.place(x, t_next)
             for constraints in self.sets:
                 constraints.reset()
             if self.green_limits is not None:
@@ -193,14 +201,22 @@ class XPBD:
                                          self.colour_start)
                 if self.green_limits is not None:
                     self.green_limits.project(x, self.w, inv_dt2)
-                for probe in m.probes:
-                    resolve_contact(x, probe, t_next, self.w)
+                for k, probe in enumerate(m.probes):
+                    substep_load[:] = 0.0
+                    resolve_contact_load(x, probe, t_next, self.w, substep_load)
+                    loads[k] += substep_load
+                # a zero-compliance constraint on the held components, projected last in each sweep (Gauss-Seidel):
+                # the converged state is XPBD's with the generalised inverse mass P / m on these nodes
+                self.partial.place(x, t_next)
             v = (x - x_prev) / h
             if self.damping > 0.0:
                 v *= np.exp(-self.damping * h)
             t = t_next
         if not np.isfinite(x).all():
             raise SimulationDiverged(f"xpbd: non-finite positions at t = {t:.6g} s")
+        # the force and torque the tissue exerts on each tool, averaged over the step: minus the contact impulses
+        # m dx / h of every substep, divided by the step (sum over substeps of (m dx / h^2) h / dt)
+        self.tool_loads = -loads / (h * dt)
         if self.branches is not None:
             self.branches.relax(x, dt)
             for constraints, (_, rest) in zip(self.sets[1:], self.branches.sets()[1:]):
