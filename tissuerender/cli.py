@@ -20,7 +20,14 @@ from tissuerender.report import accuracy as report_accuracy
 
 def _cmd_render(args) -> int:
     scene = load_scene(args.scene)
-    result = render(scene, args.out, resume=args.resume, progress=not args.quiet, frames=args.frames)
+    if args.workers is not None or args.scheduler is not None:
+        from tissuerender.distributed import render_distributed  # imports dask only when asked for
+
+        result = render_distributed(scene, args.out, resume=args.resume, progress=not args.quiet, frames=args.frames,
+                                    workers=args.workers, scheduler=args.scheduler,
+                                    announce=(lambda line: None) if args.quiet else print)
+    else:
+        result = render(scene, args.out, resume=args.resume, progress=not args.quiet, frames=args.frames)
     if not args.quiet:
         print(f"wrote {len(result.written)} file(s) to {result.out_dir}"
               + (f", kept {len(result.skipped)} finished frame(s)" if result.skipped else "")
@@ -57,6 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="keep finished frames and render only the missing ones")
     p.add_argument("--frames", type=int, default=None, help="render only the first N frames")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_dask_options(p, "frames")
     p.set_defaults(func=_cmd_render)
     p = sub.add_parser("plan", help="print the stages a scene will run, and why")
     p.add_argument("scene")
@@ -68,6 +76,14 @@ def build_parser() -> argparse.ArgumentParser:
     lookdev.add_cli(sub)
     report_accuracy.add_cli(sub)
     return parser
+
+
+def add_dask_options(p: argparse.ArgumentParser, what: str) -> None:
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, metavar="N",
+                       help=f"render the {what} as Dask tasks on a local cluster of N worker processes (docs/dask.md)")
+    where.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                       help=f"render the {what} as Dask tasks on the cluster of this scheduler (docs/dask.md)")
 
 
 class Terminated(KeyboardInterrupt):
@@ -84,6 +100,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if getattr(args, "frames", None) is not None and args.frames < 1:
         parser.error(f"--frames: expected a positive number, found {args.frames}")
+    if getattr(args, "workers", None) is not None and args.workers < 1:
+        parser.error(f"--workers: expected a positive number, found {args.workers}")
     in_main_thread = threading.current_thread() is threading.main_thread()  # signal.signal works only there
     previous = signal.signal(signal.SIGTERM, _terminate) if in_main_thread else None
     try:
