@@ -39,6 +39,18 @@ def _cmd_render(args) -> int:
     return 0
 
 
+def _cmd_batch(args) -> int:
+    from tissuerender.batch import load_spec, run_batch  # imports dask only when asked for
+
+    spec = load_spec(args.spec)
+    data = run_batch(spec, args.out, resume=args.resume, progress=not args.quiet, workers=args.workers,
+                     scheduler=args.scheduler, announce=(lambda line: None) if args.quiet else print)
+    if not args.quiet:
+        print(f"{data['sequences_complete']} of {data['sequences_total']} sequence(s) complete in {args.out}; "
+              f"batch manifest: {args.out}/batch.json")
+    return 0
+
+
 def _cmd_plan(args) -> int:
     scene = load_scene(args.scene)
     print(f"scene {scene.name!r} ({scene.path})")
@@ -66,6 +78,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     add_dask_options(p, "frames")
     p.set_defaults(func=_cmd_render)
+    p = sub.add_parser("batch", help="render many sequences from a base scene plus randomisation (docs/batch-format.md)")
+    p.add_argument("spec", help="the batch spec file (TOML)")
+    p.add_argument("-o", "--out", required=True, help="the batch folder: one folder per sequence and batch.json")
+    p.add_argument("--resume", action="store_true", help="keep finished sequences and frames; render the rest")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_dask_options(p, "sequences")
+    p.set_defaults(func=_cmd_batch)
     p = sub.add_parser("plan", help="print the stages a scene will run, and why")
     p.add_argument("scene")
     p.set_defaults(func=_cmd_plan)
@@ -111,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt as e:
         how = "terminated" if isinstance(e, Terminated) else "interrupted"
-        if args.command == "render":
+        if args.command in ("render", "batch"):
             print(f"{how}: finished frames are kept; rerun with --resume to continue", file=sys.stderr)
         elif args.command == "report":
             print(f"{how}: finished cases are kept in {args.out}/cases; rerun the same command to continue",

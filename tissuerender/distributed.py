@@ -70,7 +70,10 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, announ
     finally:
         client.close()
         if cluster is not None:
-            cluster.close()
+            try:
+                cluster.close(timeout=30)
+            except TimeoutError:  # a worker slow to stop is killed by its nanny; the render's files are complete
+                announce("dask: the local cluster took over 30 s to stop; its worker processes were killed")
 
 
 def dashboard(client) -> str:

@@ -185,7 +185,8 @@ def finish_sequence(seq: Sequence) -> RunResult:
     return RunResult(seq.out, seq.written, seq.skipped, seq.plan, seq.recorder, final, stale)
 
 
-def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, frames: int | None = None) -> RunResult:
+def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, frames: int | None = None,
+           on_frame=None) -> RunResult:
     """Render the scene's image sequence into ``out_dir`` (frames, optional HDR/VTU, manifest.json).
 
     ``frames`` renders only the first N of the scene's frames. ``resume`` keeps the frames that
@@ -193,12 +194,14 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
     formats; anything else is a :class:`UserError`) whose files all still exist; the rest are rendered.
     Without ``resume`` the folder starts over: the manifest records no frame until this run writes it.
     See docs/design.md, "Resume and interruption". ``tissuerender.distributed.render_distributed`` renders the
-    same frames as Dask tasks.
+    same frames as Dask tasks. ``on_frame()`` is called after each frame is finished or kept (a batch's progress).
     """
     seq = start_sequence(scene, out_dir, resume, frames)
     world, plan, recorder, out = seq.world, seq.plan, seq.recorder, seq.out
     previous = None
     bar = _progress(progress, seq.n_frames, scene.name)
+    if on_frame is not None:
+        bar.advance = _then(bar.advance, on_frame)
     try:
         for k in range(1, seq.n_frames + 1):
             if k > 1 and "simulate" in plan:
@@ -220,6 +223,14 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
     finally:
         bar.close()
     return finish_sequence(seq)
+
+
+def _then(first, second):
+    def both():
+        first()
+        second()
+
+    return both
 
 
 def output_formats(plan: Plan) -> list[str]:
@@ -245,9 +256,14 @@ def _resumable(out: Path, scene: Scene, formats: list[str]) -> set[int]:
 def _frame_files(out: Path, k: int, plan: Plan, world: World) -> list[Path]:
     """Every file frame ``k`` writes (PNG, HDR, one .vtu per body); ``resume`` keeps a frame only when the
     manifest records it finished and all of them exist."""
+    return frame_files(out, k, plan, [body.spec.name for body in world.bodies])
+
+
+def frame_files(out: Path, k: int, plan: Plan, body_names: list[str]) -> list[Path]:
+    """``_frame_files`` from the bodies' names alone (a batch checks a finished sequence without building it)."""
     wanted = [out / frame_name(k)] if "write_png" in plan else []
     wanted += [out / frame_name(k, "npy")] if "write_hdr" in plan else []
-    wanted += [out / f"{body.spec.name}_{k:04d}.vtu" for body in world.bodies] if "write_vtu" in plan else []
+    wanted += [out / f"{name}_{k:04d}.vtu" for name in body_names] if "write_vtu" in plan else []
     wanted += [groundtruth.pass_path(out, name, k) for name in plan_passes(plan)]
     return wanted
 
