@@ -106,6 +106,17 @@ def test_resume_reuses_the_states_and_renders_only_the_frames_whose_files_are_mi
     assert _outputs(out) == serial
 
 
+def test_a_batch_on_the_cluster_writes_the_same_sequences_as_in_one_process(setup, tmp_path):
+    _, _, _, _, client = setup
+    from tests.test_batch import SPEC, _files, _write
+
+    spec = _write(tmp_path, {**SPEC, "batch": {**SPEC["batch"], "sequences": 2}})
+    assert main(["batch", str(spec), "-o", str(tmp_path / "serial"), "-q"]) == 0
+    assert main(["batch", str(spec), "-o", str(tmp_path / "dask"), "-q", "--scheduler", client.scheduler.address]) == 0
+    assert len(_files(tmp_path / "dask")) == 2 * 3 and _files(tmp_path / "dask") == _files(tmp_path / "serial")
+    assert json.loads((tmp_path / "dask" / "batch.json").read_text())["complete"] is True
+
+
 # last of the cluster's tests: the worker its nanny restarts would start cold
 def test_a_worker_killed_mid_render_loses_no_finished_frame_and_nothing_is_written_twice(setup):
     root, _, scene, serial, client = setup
