@@ -32,7 +32,7 @@ sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirna
 import numba  # noqa: E402
 
 from tissuerender import load_scene, render  # noqa: E402
-from tissuerender.distributed import dask_client, render_distributed  # noqa: E402
+from tissuerender.distributed import dask_client, render_distributed, render_frame_task  # noqa: E402
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "liver_probe.toml"
 
@@ -67,10 +67,12 @@ def main() -> None:
         numba.set_num_threads(threads)
         for workers in (2, 1):
             with dask_client(workers, announce=lambda line: None) as client:
-                client.run(lambda: None)
-                # every worker renders a frame before timing (imports, numba cache, the bodies built once)
-                render_distributed(benchmark_scene(workers, resolution), root / f"warm{workers}", progress=False,
-                                   client=client)
+                # every worker renders a frame of the same scene before timing (imports, numba cache, the
+                # bodies built once per worker): one warm-up task pinned to each worker
+                render_distributed(warm, root / f"states{workers}", progress=False, client=client)
+                client.gather([client.submit(render_frame_task, scene, str(root / f"states{workers}"), 1, time.time(),
+                                             None, workers=[address], allow_other_workers=False, pure=False)
+                               for address in client.scheduler_info()["workers"]])
                 wall = _timed(lambda: render_distributed(scene, root / f"dask{workers}", progress=False,
                                                          client=client))
             result[f"fps_dask_{workers}"] = round(frames / wall, 3)
@@ -87,6 +89,11 @@ def main() -> None:
                    "calls": {k: v["calls"] for k, v in manifest["executed"].items()},
                    "seconds": {k: v["seconds"] for k, v in manifest["executed"].items()}, "again": False}
         result["result_bytes"] = len(pickle.dumps(example))
+        for name in ("write_state", "read_state"):  # the state files' share of the Dask path, per frame
+            result[f"{name}_s_per_frame"] = round(manifest["executed"][name]["seconds"] / frames, 4)
+        render_stages = sum(v["seconds"] for k, v in manifest["executed"].items()
+                            if k not in ("simulate", "write_state", "read_state", "mesh", "load_surface"))
+        result["render_s_per_frame_dask_2"] = round(render_stages / frames, 4)
     result["machine"] = f"{platform.machine()} {os.cpu_count()} cpus"
     print(f"serial {result['fps_serial']} fps, 2 workers {result['fps_dask_2']} fps; Dask overhead "
           f"{100 * result['dask_overhead_fraction']:.1f} % of a frame; state {result['state_bytes_per_frame']} B/frame")

@@ -117,6 +117,19 @@ def test_a_batch_on_the_cluster_writes_the_same_sequences_as_in_one_process(setu
     assert json.loads((tmp_path / "dask" / "batch.json").read_text())["complete"] is True
 
 
+def test_the_accuracy_report_cases_run_as_dask_tasks_with_the_serial_errors(setup, tmp_path):
+    _, _, _, _, client = setup
+    from tissuerender.report import accuracy
+
+    serial = accuracy.run_report(tmp_path / "serial", cases=["msd"], level="tiny")["cases"]["msd"]
+    on_dask = accuracy.run_report(tmp_path / "dask", cases=["msd"], level="tiny", client=client)["cases"]["msd"]
+    assert on_dask["cached"] is False and (tmp_path / "dask" / "cases" / "msd.json").is_file()
+    assert on_dask["convergence"]["errors_m"] == serial["convergence"]["errors_m"]  # the same arithmetic, elsewhere
+    assert [p["max_abs_m"] for p in on_dask["points"]] == [p["max_abs_m"] for p in serial["points"]]
+    again = accuracy.run_report(tmp_path / "dask", cases=["msd"], level="tiny", client=client)["cases"]["msd"]
+    assert again["cached"] is True  # a finished case is reused, not sent to the cluster again
+
+
 # last of the cluster's tests: the worker its nanny restarts would start cold
 def test_a_worker_killed_mid_render_loses_no_finished_frame_and_nothing_is_written_twice(setup):
     root, _, scene, serial, client = setup

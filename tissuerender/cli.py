@@ -14,6 +14,7 @@ import threading
 from sim.errors import MeshError
 from tissuerender import golden, load_scene, lookdev, make_plan, render
 from tissuerender.checks import check_scene
+from tissuerender.distributed import add_dask_options
 from tissuerender.errors import UserError
 from tissuerender.report import accuracy as report_accuracy
 
@@ -21,7 +22,7 @@ from tissuerender.report import accuracy as report_accuracy
 def _cmd_render(args) -> int:
     scene = load_scene(args.scene)
     if args.workers is not None or args.scheduler is not None:
-        from tissuerender.distributed import render_distributed  # imports dask only when asked for
+        from tissuerender.distributed import render_distributed
 
         result = render_distributed(scene, args.out, resume=args.resume, progress=not args.quiet, frames=args.frames,
                                     workers=args.workers, scheduler=args.scheduler,
@@ -95,14 +96,6 @@ def build_parser() -> argparse.ArgumentParser:
     lookdev.add_cli(sub)
     report_accuracy.add_cli(sub)
     return parser
-
-
-def add_dask_options(p: argparse.ArgumentParser, what: str) -> None:
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=None, metavar="N",
-                       help=f"render the {what} as Dask tasks on a local cluster of N worker processes (docs/dask.md)")
-    where.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
-                       help=f"render the {what} as Dask tasks on the cluster of this scheduler (docs/dask.md)")
 
 
 class Terminated(KeyboardInterrupt):

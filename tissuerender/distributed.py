@@ -11,7 +11,9 @@ See docs/dask.md.
 """
 from __future__ import annotations
 
+import argparse
 import os
+import pickle
 import threading
 import time
 from contextlib import contextmanager, nullcontext
@@ -26,6 +28,14 @@ from tissuerender.scene import Scene
 from tissuerender.stages import StageRecorder
 from tissuerender.states import apply_state, read_state, states_complete, write_state
 from tissuerender.world import advance, build_world
+
+
+def add_dask_options(p: argparse.ArgumentParser, what: str) -> None:
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, metavar="N",
+                       help=f"render the {what} as Dask tasks on a local cluster of N worker processes (docs/dask.md)")
+    where.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                       help=f"render the {what} as Dask tasks on the cluster of this scheduler (docs/dask.md)")
 
 
 def worker_threads(n_workers: int, cpus: int | None = None) -> int:
@@ -91,7 +101,7 @@ _worlds = threading.local()
 
 
 def _world_for(scene: Scene, recorder: StageRecorder):
-    key = (str(scene.path), scene.sha256)
+    key = pickle.dumps(scene)  # the whole scene (a few KB), not just its file's sha256: an API caller may vary it
     if getattr(_worlds, "key", None) != key:
         plan = make_plan(scene)
         _worlds.key, _worlds.value = key, (plan, build_world(scene, plan, recorder))
@@ -126,9 +136,10 @@ def render_frame_task(scene: Scene, out: str, k: int, run_start: float, numba_th
                     "again": True}
         previous = None
         if "simulate" in plan:
-            apply_state(world, read_state(out, k, scene, len(world.bodies)))
-            if "velocity_channel" in plan and k > 1:
-                before = read_state(out, k - 1, scene, len(world.bodies))
+            with recorder.run("read_state"):
+                apply_state(world, read_state(out, k, scene, len(world.bodies)))
+                before = read_state(out, k - 1, scene, len(world.bodies)) if "velocity_channel" in plan and k > 1 else None
+            if before is not None:
                 previous = {body.spec.name: body.surface_points(x) for body, x in zip(world.bodies, before.x)}
         written, _, backend = pipeline.render_frame_files(out, k, world, scene, plan, recorder, previous)
     except UserError as e:  # returned, not raised: the client need not unpickle the exception's own class
