@@ -85,7 +85,8 @@ def test_sequences_differ_from_each_other_and_another_seed_changes_them(runs):
 def test_the_batch_manifest_records_every_sequence_and_a_resume_keeps_finished_ones(runs):
     out = runs / "a"
     data = json.loads((out / "batch.json").read_text())
-    assert (data["kind"], data["complete"], data["sequences_complete"], data["seed"]) == ("tissuerender.batch", True, 3, 7)
+    assert (data["kind"], data["complete"], data["sequences_complete"], data["seed"]) == \
+        ("tissuerender.batch", True, 3, 7)
     assert [e["scene_sha256"] for e in data["sequences"]] == [load_scene(out / e["folder"] / "scene.toml").sha256
                                                             for e in data["sequences"]]
     (out / "seq_0001" / "frame_0002.png").unlink()  # one frame of one sequence lost
@@ -99,9 +100,12 @@ def test_the_batch_manifest_records_every_sequence_and_a_resume_keeps_finished_o
 
 @pytest.mark.parametrize("change, expected", [
     ({"batch": {"scene": "base.toml", "sequences": 0}}, "spec.toml: batch.sequences: expected input should be greater"),
-    ({"randomise": {"light_radiance": [2.0, 1.0]}}, "spec.toml: randomise: expected value error, light_radiance: a range"),
+    ({"randomise": {"light_radiance": [2.0, 1.0]}},
+     "spec.toml: randomise.light_radiance: expected a range [low, high] with low <= high, found [2.0, 1.0]"),
     ({"randomise": {"materials": [{"object": "lung", "E": [1.0, 2.0]}]}},
      "spec.toml: randomise.materials[0].object: expected one of the base scene's objects (block), found 'lung'"),
+    ({"randomise": {"materials": [{"object": "block", "E": [9000.0, 2000.0]}]}},
+     "spec.toml: randomise.materials[0].E: expected a range [low, high] with low <= high"),
     ({"randomise": {"camera_jiter": 0.1}}, "spec.toml: randomise.camera_jiter: unknown key (found 0.1); check its "
                                            "spelling against docs/batch-format.md"),
     ({"batch": {"scene": "missing.toml", "sequences": 1}}, "spec.toml: batch.scene: expected a scene file"),
@@ -118,4 +122,5 @@ def test_the_batch_format_doc_names_every_spec_key():
     for model in (SpecFile, BatchInfo, Randomise, MaterialRanges):
         for name in model.model_fields:
             # a key `name`, or a table heading `[name]` / `[[randomise.name]]`
-            assert re.search(rf"`\[*(\w+\.)?{name}\]*`", text), f"docs/batch-format.md does not document {model.__name__}.{name}"
+            assert re.search(rf"`\[*(\w+\.)?{name}\]*`", text), \
+                f"docs/batch-format.md does not document {model.__name__}.{name}"

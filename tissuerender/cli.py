@@ -79,7 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     add_dask_options(p, "frames")
     p.set_defaults(func=_cmd_render)
-    p = sub.add_parser("batch", help="render many sequences from a base scene plus randomisation (docs/batch-format.md)")
+    p = sub.add_parser("batch", help="render many sequences from a base scene plus randomisation "
+                                     "(docs/batch-format.md)")
     p.add_argument("spec", help="the batch spec file (TOML)")
     p.add_argument("-o", "--out", required=True, help="the batch folder: one folder per sequence and batch.json")
     p.add_argument("--resume", action="store_true", help="keep finished sequences and frames; render the rest")

@@ -12,6 +12,7 @@ See docs/dask.md.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import pickle
 import threading
@@ -138,7 +139,8 @@ def render_frame_task(scene: Scene, out: str, k: int, run_start: float, numba_th
         if "simulate" in plan:
             with recorder.run("read_state"):
                 apply_state(world, read_state(out, k, scene, len(world.bodies)))
-                before = read_state(out, k - 1, scene, len(world.bodies)) if "velocity_channel" in plan and k > 1 else None
+                wants_previous = "velocity_channel" in plan and k > 1
+                before = read_state(out, k - 1, scene, len(world.bodies)) if wants_previous else None
             if before is not None:
                 previous = {body.spec.name: body.surface_points(x) for body, x in zip(world.bodies, before.x)}
         written, _, backend = pipeline.render_frame_files(out, k, world, scene, plan, recorder, previous)
@@ -194,8 +196,11 @@ def render_distributed(scene: Scene, out_dir, resume: bool = False, progress: bo
         with opened as c:
             from distributed import as_completed
 
-            futures = [c.submit(render_frame_task, scene, str(seq.out), k, run_start, threads, pure=False,
-                                key=f"tissuerender-frame-{k:04d}-{os.getpid()}-{run_start!r}") for k in todo]
+            # absolute paths: a worker's working folder is not the client's (on a cluster, not even its machine)
+            task_scene = dataclasses.replace(scene, path=scene.path.resolve())
+            futures = [c.submit(render_frame_task, task_scene, str(seq.out.resolve()), k, run_start, threads,
+                                pure=False, key=f"tissuerender-frame-{k:04d}-{os.getpid()}-{run_start!r}")
+                       for k in todo]
             frame_of = {future.key: k for future, k in zip(futures, todo)}
             for future in as_completed(futures):
                 k = frame_of[future.key]

@@ -72,7 +72,7 @@ def run_batch(spec: BatchSpec, out_dir, resume: bool = False, progress: bool = T
     """Make and render every sequence of ``spec`` in ``out_dir``; returns the batch manifest (also written to
     ``batch.json``). A UserError after the others finish when a sequence failed."""
     start = time.perf_counter()
-    out = output_folder(out_dir)
+    out = output_folder(out_dir).resolve()  # absolute: Dask workers may run in another folder
     if resume:
         _check_resumable(out / "batch.json", spec)
     entries, scenes = [], []

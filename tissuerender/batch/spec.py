@@ -24,7 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic_core import PydanticCustomError
 
 from tissuerender.errors import SceneError
 from tissuerender.scene import Scene, load_scene
@@ -37,9 +38,10 @@ class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False, frozen=True)
 
 
-def _ordered(rng: list[float] | None, name: str) -> None:
+def _ordered(rng: list[float] | None) -> list[float] | None:
     if rng is not None and rng[0] > rng[1]:
-        raise ValueError(f"{name}: a range [low, high] with low <= high, found {rng}")
+        raise PydanticCustomError("range_order", "a range [low, high] with low <= high")
+    return rng
 
 
 class BatchInfo(Strict):
@@ -61,11 +63,7 @@ class MaterialRanges(Strict):
     ior: Range | None = Field(None, description="index of refraction (1 ... 3)")
     k_sss: Range | None = Field(None, description="subsurface weight (0 ... 1; not for plastic)")
 
-    @model_validator(mode="after")
-    def _ranges_ordered(self):
-        for name in ("E", "nu", "density", "roughness", "ior", "k_sss"):
-            _ordered(getattr(self, name), name)
-        return self
+    _ranges_ordered = field_validator("E", "nu", "density", "roughness", "ior", "k_sss")(_ordered)
 
 
 class Randomise(Strict):
@@ -81,10 +79,7 @@ class Randomise(Strict):
     materials: Annotated[list[MaterialRanges], Field(max_length=64, description=(
         "per-object material ranges (table below)"))] = []
 
-    @model_validator(mode="after")
-    def _ranges_ordered(self):
-        _ordered(self.light_radiance, "light_radiance")
-        return self
+    _ranges_ordered = field_validator("light_radiance")(_ordered)
 
 
 class SpecFile(Strict):
