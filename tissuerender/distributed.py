@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import logging
 import os
 import pickle
 import threading
@@ -66,8 +67,8 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, announ
         with dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_env}):
             saved = os.environ.get("NUMBA_NUM_THREADS")
             try:
-                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                       dashboard_address=":0", env={"NUMBA_NUM_THREADS": str(threads)})
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                       env={"NUMBA_NUM_THREADS": str(threads)}, silence_logs=logging.ERROR)
             finally:  # the nanny sets it in this process's environment too: put it back
                 if saved is None:
                     os.environ.pop("NUMBA_NUM_THREADS", None)
@@ -81,10 +82,16 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, announ
     finally:
         client.close()
         if cluster is not None:
+            # its nannies warn when a busy worker takes over 4 s to stop and is killed: expected at shut-down
+            nanny_log = logging.getLogger("distributed.nanny")
+            level = nanny_log.level
+            nanny_log.setLevel(logging.ERROR)
             try:
                 cluster.close(timeout=30)
-            except TimeoutError:  # a worker slow to stop is killed by its nanny; the render's files are complete
+            except TimeoutError:  # the render's files are complete; only the shut-down was slow
                 announce("dask: the local cluster took over 30 s to stop; its worker processes were killed")
+            finally:
+                nanny_log.setLevel(level)
 
 
 def dashboard(client) -> str:
