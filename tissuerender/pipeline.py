@@ -107,15 +107,48 @@ class RunResult:
 OUTPUT_NAME = re.compile(r"^frame_\d{4,}\.(png|npy|exr)$|^.+_\d{4,}\.vtu$")
 
 
-def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, frames: int | None = None) -> RunResult:
-    """Render the scene's image sequence into ``out_dir`` (frames, optional HDR/VTU, manifest.json).
+@dataclass
+class Sequence:
+    """One render into one folder as far as it has got: what the serial loop and the Dask client
+    (``tissuerender.distributed``) share. ``done`` holds the finished frames (kept or written); every change
+    to it is followed by ``record`` so the manifest on disk says the same."""
 
-    ``frames`` renders only the first N of the scene's frames. ``resume`` keeps the frames that
-    ``manifest.json`` records as finished by a render of the same scene file (same sha256, frame count and
-    formats; anything else is a :class:`UserError`) whose files all still exist; the rest are rendered.
-    Without ``resume`` the folder starts over: the manifest records no frame until this run writes it.
-    See docs/design.md, "Resume and interruption".
-    """
+    scene: Scene
+    out: Path
+    plan: Plan
+    formats: list[str]
+    recorder: StageRecorder
+    world: World
+    n_frames: int
+    done: set[int]
+    start: float
+    written: list[Path] = field(default_factory=list)
+    skipped: list[Path] = field(default_factory=list)
+    backend_used: str | None = None
+    extra: dict = field(default_factory=dict)  # manifest keys of the executor (``executor``, ``states``)
+    tool_forces: ToolForceLog | None = None  # per-frame tool forces, when the plan has contact
+
+    def record(self, extra: dict) -> dict:
+        forces = {} if self.tool_forces is None else {"tool_forces": self.tool_forces.summary()}
+        data = manifest(self.scene, self.plan, self.recorder, self.formats, self.n_frames, self.done,
+                        time.perf_counter() - self.start,
+                        {"postfx_backend": self.backend_used, **forces, **self.extra, **extra})
+        write_json(self.out / "manifest.json", data)
+        return data
+
+    def frame_finished(self, k: int, written: list[Path], backend_used: str | None) -> None:
+        """Frame ``k``'s files are all written: record it (cameras.json first, then the manifest)."""
+        self.written += written
+        self.backend_used = backend_used if backend_used is not None else self.backend_used
+        self.done.add(k)
+        if "write_passes" in self.plan:
+            _write_cameras(self.out, self.scene, self.done)  # before the manifest records the frame as finished
+        self.record({"complete": False})
+
+
+def start_sequence(scene: Scene, out_dir, resume: bool = False, frames: int | None = None) -> Sequence:
+    """Everything before the first frame: the folder, the plan, the frames a resumed render keeps, the checks
+    and the world they build, a first manifest naming this scene, and labels.json / cameras.json."""
     start = time.perf_counter()
     out = output_folder(out_dir)
     plan = make_plan(scene)
@@ -128,59 +161,101 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
     world = check_scene(scene, recorder).world  # the checks `validate` runs, and the world they build
     n_frames = scene.output.frames if frames is None else min(frames, scene.output.frames)
     done = {k for k in recorded if all(p.exists() for p in _frame_files(out, k, plan, world))}
-    written, skipped = [], []
-    previous = None
-    backend_used = None
-    tool_forces = ToolForceLog(scene) if "contact" in plan else None  # OUT/tool_forces.csv (tissuerender.world)
-
-    def record(extra: dict) -> dict:
-        forces = {} if tool_forces is None else {"tool_forces": tool_forces.summary()}
-        data = manifest(scene, plan, recorder, formats, n_frames, done, time.perf_counter() - start,
-                        {"postfx_backend": backend_used, **forces, **extra})
-        write_json(out / "manifest.json", data)
-        return data
-
-    record({"complete": False})  # from here on the folder's manifest names this scene
+    seq = Sequence(scene, out, plan, formats, recorder, world, n_frames, done, start)
+    # OUT/tool_forces.csv (tissuerender.world): the forces come from the simulation, run by whoever advances it
+    seq.tool_forces = ToolForceLog(scene) if "contact" in plan else None
+    seq.record({"complete": False})  # from here on the folder's manifest names this scene
     if "write_passes" in plan:
         groundtruth.write_labels(out, groundtruth.labels(scene))
         _write_cameras(out, scene, done)
-    bar = _progress(progress, n_frames, scene.name)
+    return seq
+
+
+def render_frame_files(out: Path, k: int, world: World, scene: Scene, plan: Plan, recorder: StageRecorder,
+                       previous=None) -> tuple[list[Path], dict, str | None]:
+    """Render frame ``k`` from ``world`` at the frame's time and write its planned files: (their paths, the
+    bodies' surface positions (frame ``k + 1``'s ``previous``), the post-effects backend used). The serial
+    loop and a Dask task (``tissuerender.distributed``) both render through it."""
+    t = (k - 1) / scene.output.fps
+    seed = frame_seed(scene, k)
+    result, positions = render_hdr(world, scene, plan, recorder, t, seed, previous=previous)
+    image, backend_used = postprocess(scene, result.hdr, result.depth, recorder, seed, frame=k)
+    written = _write_frame(out, k, plan, recorder, world, image, result.hdr)
+    if "write_passes" in plan:
+        with recorder.run("write_passes"):
+            written += groundtruth.write_passes(out, k, result.passes, _body_ids(world))
+    if "write_geometry" in plan:
+        with recorder.run("write_geometry"):
+            written += groundtruth.write_geometry(out, k, result.geometry, t)
+    camera = camera_for(scene, t=t)
+    lens = lens_for(scene, camera)
+    written += gt_formats.write_frame_formats(out, k, output_formats(plan), result.hdr, result.passes,
+                                              groundtruth.intrinsics(camera) if lens is None else lens.K,
+                                              gt_formats.depth_png_scale(scene.camera.far), recorder, lens)
+    return written, positions, backend_used
+
+
+def finish_sequence(seq: Sequence) -> RunResult:
+    """The end of a sequence: the files that need every frame (flows and tracks from the frames' geometry, the
+    flow's other formats, the mp4 preview), then the final manifest (``complete``, what this run wrote and
+    kept); cameras.json is already current (``Sequence.frame_finished``). Names the frame files in the folder
+    that are not this render's."""
+    out, plan, recorder, done = seq.out, seq.plan, seq.recorder, seq.done
     try:
-        for k in range(1, n_frames + 1):
+        if "write_geometry" in plan:  # flows and tracks need every frame's geometry
+            seq.written += groundtruth.finish_sequence(out, seq.scene, done, seq.n_frames, recorder)
+        if "write_flow_files" in plan:  # .flo, KITTI and the EXR's flow layers, from the flow masters
+            with recorder.run("write_flow_files"):
+                seq.written += gt_formats.complete_from_masters(out, sorted(done), seq.formats)
+        if "write_mp4" in plan and done:
+            with recorder.run("write_mp4"):
+                seq.written.append(gt_formats.write_preview(out, [out / frame_name(k) for k in sorted(done)],
+                                                            seq.scene.output.fps))
+    except BaseException:
+        remove_temporaries(out)  # as the frame loop: a signal leaves only complete files
+        if (out / groundtruth.PASSES_FOLDER).is_dir():
+            remove_temporaries(out / groundtruth.PASSES_FOLDER)
+        raise
+    final = seq.record({"complete": True, "written": [p.name for p in seq.written],
+                        "resumed_skipped": [p.name for p in seq.skipped]})
+    ours = {p.name for k in seq.done for p in _frame_files(seq.out, k, seq.plan, seq.world)}
+    stale = sorted(p for p in seq.out.iterdir() if OUTPUT_NAME.match(p.name) and p.name not in ours)
+    return RunResult(seq.out, seq.written, seq.skipped, seq.plan, seq.recorder, final, stale)
+
+
+def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, frames: int | None = None,
+           on_frame=None) -> RunResult:
+    """Render the scene's image sequence into ``out_dir`` (frames, optional HDR/VTU, manifest.json).
+
+    ``frames`` renders only the first N of the scene's frames. ``resume`` keeps the frames that
+    ``manifest.json`` records as finished by a render of the same scene file (same sha256, frame count and
+    formats; anything else is a :class:`UserError`) whose files all still exist; the rest are rendered.
+    Without ``resume`` the folder starts over: the manifest records no frame until this run writes it.
+    See docs/design.md, "Resume and interruption". ``tissuerender.distributed.render_distributed`` renders the
+    same frames as Dask tasks. ``on_frame()`` is called after each frame is finished or kept (a batch's progress).
+    """
+    seq = start_sequence(scene, out_dir, resume, frames)
+    world, plan, recorder, out = seq.world, seq.plan, seq.recorder, seq.out
+    previous = None
+    bar = _progress(progress, seq.n_frames, scene.name)
+    if on_frame is not None:
+        bar.advance = _then(bar.advance, on_frame)
+    try:
+        for k in range(1, seq.n_frames + 1):
             if k > 1 and "simulate" in plan:
                 advance(world, scene, recorder)
-            if tool_forces is not None:
-                tool_forces.record(k, (k - 1) / scene.output.fps, world)
-                tool_forces.write(out)
-            if k in done:
-                skipped.append(out / frame_name(k))
+            if seq.tool_forces is not None:
+                seq.tool_forces.record(k, (k - 1) / scene.output.fps, world)
+                seq.tool_forces.write(out)
+            if k in seq.done:
+                seq.skipped.append(out / frame_name(k))
                 if "velocity_channel" in plan:
                     previous = _surface_positions(world, plan)
                 bar.advance()
                 continue
-            t = (k - 1) / scene.output.fps
-            seed = frame_seed(scene, k)
-            result, previous = render_hdr(world, scene, plan, recorder, t, seed, previous=previous)
-            image, backend_used = postprocess(scene, result.hdr, result.depth, recorder, seed, frame=k)
-            written += _write_frame(out, k, plan, recorder, world, image, result.hdr)
-            if "write_passes" in plan:
-                with recorder.run("write_passes"):
-                    written += groundtruth.write_passes(out, k, result.passes, _body_ids(world))
-            if "write_geometry" in plan:
-                with recorder.run("write_geometry"):
-                    written += groundtruth.write_geometry(out, k, result.geometry, t)
-            camera = camera_for(scene, t=t)
-            lens = lens_for(scene, camera)
-            written += gt_formats.write_frame_formats(out, k, formats, result.hdr, result.passes,
-                                                      groundtruth.intrinsics(camera) if lens is None else lens.K,
-                                                      gt_formats.depth_png_scale(scene.camera.far), recorder, lens)
-            done.add(k)
-            if "write_passes" in plan:
-                _write_cameras(out, scene, done)  # before the manifest records the frame as finished
-            record({"complete": False})
+            written, previous, backend_used = render_frame_files(out, k, world, scene, plan, recorder, previous)
+            seq.frame_finished(k, written, backend_used)
             bar.advance()
-        if "write_geometry" in plan:  # flows and tracks need every frame's geometry
-            written += groundtruth.finish_sequence(out, scene, done, n_frames, recorder)
     except BaseException:
         # a signal (SIGINT, SIGTERM) landing between a temporary's creation and its writer's own clean-up
         # would leave it behind: the folder holds only complete files when the render stops
@@ -188,17 +263,15 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
         raise
     finally:
         bar.close()
-    if "write_flow_files" in plan:  # flow written after the frames (it needs the next one): .flo, KITTI, EXR layers
-        with recorder.run("write_flow_files"):
-            written += gt_formats.complete_from_masters(out, sorted(done), formats)
-    if "write_mp4" in plan and done:
-        with recorder.run("write_mp4"):
-            written.append(gt_formats.write_preview(out, [out / frame_name(k) for k in sorted(done)], scene.output.fps))
-    final = record({"complete": True, "written": [p.name for p in written],
-                    "resumed_skipped": [p.name for p in skipped]})
-    ours = {p.name for k in done for p in _frame_files(out, k, plan, world)}
-    stale = sorted(p for p in out.iterdir() if OUTPUT_NAME.match(p.name) and p.name not in ours)
-    return RunResult(out, written, skipped, plan, recorder, final, stale)
+    return finish_sequence(seq)
+
+
+def _then(first, second):
+    def both():
+        first()
+        second()
+
+    return both
 
 
 def output_formats(plan: Plan) -> list[str]:
@@ -225,9 +298,14 @@ def _resumable(out: Path, scene: Scene, formats: list[str]) -> set[int]:
 def _frame_files(out: Path, k: int, plan: Plan, world: World) -> list[Path]:
     """Every file frame ``k`` writes (PNG, HDR, one .vtu per body); ``resume`` keeps a frame only when the
     manifest records it finished and all of them exist."""
+    return frame_files(out, k, plan, [body.spec.name for body in world.bodies])
+
+
+def frame_files(out: Path, k: int, plan: Plan, body_names: list[str]) -> list[Path]:
+    """``_frame_files`` from the bodies' names alone (a batch checks a finished sequence without building it)."""
     wanted = [out / frame_name(k)] if "write_png" in plan else []
     wanted += [out / frame_name(k, "npy")] if "write_hdr" in plan else []
-    wanted += [out / f"{body.spec.name}_{k:04d}.vtu" for body in world.bodies] if "write_vtu" in plan else []
+    wanted += [out / f"{name}_{k:04d}.vtu" for name in body_names] if "write_vtu" in plan else []
     wanted += groundtruth.frame_pass_files(out, k, plan_passes(plan))
     wanted += gt_formats.frame_files(out, k, output_formats(plan))
     return wanted

@@ -22,6 +22,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
     TimeRemainingColumn
 
 import sim
+from tissuerender.distributed import add_dask_options, dask_client
 from tissuerender.errors import UserError
 from tissuerender.files import output_folder, write_atomic, write_json
 from tissuerender.manifest import package_versions
@@ -109,14 +110,16 @@ class _Bar:
 
 
 def run_report(out, quick: bool = False, cases: list[str] | None = None, level: str | None = None,
-               progress: bool = False) -> dict:
+               progress: bool = False, workers: int | None = None, scheduler: str | None = None,
+               client=None) -> dict:
     """Run (or reuse) every case, write the JSON and HTML; returns the report dict. ``level`` is the sweep
-    size: "full", "quick" (``--quick``) or "tiny" (the test suite's); it defaults from ``quick``."""
+    size: "full", "quick" (``--quick``) or "tiny" (the test suite's); it defaults from ``quick``. With
+    ``workers`` / ``scheduler`` / ``client`` the cases to compute run as Dask tasks (docs/dask.md)."""
     out = output_folder(out)
     level = level or ("quick" if quick else "full")
     names = cases if cases is not None else parse_cases(None, quick)
     versions, code = package_versions(), code_hash()
-    results, timings = {}, {}
+    results, timings, todo = {}, {}, {}
     units = {name: case_runs.work_units(name, case_runs.sweep_for(name, level)) for name in names}
     bar = _Bar(progress, sum(units.values()))
     start = time.perf_counter()
@@ -130,13 +133,18 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
             if stored is not None:
                 results[name] = {**stored["result"], "cached": True, "computed_wall_s": stored["wall_s"]}
                 bar.advance(units[name])
+            elif workers is not None or scheduler is not None or client is not None:
+                todo[name] = (sweep, key, path)  # run below, as Dask tasks
             else:
                 t0 = time.perf_counter()
                 result = finite_json(case_runs.run_case(name, sweep, bar.advance))
                 wall = time.perf_counter() - t0
                 write_json(path, {"kind": KIND, "key": key, "wall_s": wall, "result": result})
                 results[name] = {**result, "cached": False, "computed_wall_s": wall}
-            timings[name] = results[name]["computed_wall_s"]
+        if todo:
+            _run_cases_on_dask(todo, results, units, bar, workers, scheduler, client)
+        results = {name: results[name] for name in names}
+        timings = {name: results[name]["computed_wall_s"] for name in names}
     finally:
         bar.close()
     report = {"kind": KIND, "format": FORMAT, "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
@@ -154,6 +162,34 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
     return report
 
 
+def _case_task(name: str, sweep: dict) -> tuple[dict, float]:
+    """One case as a Dask task: (its result, its wall time on the worker)."""
+    t0 = time.perf_counter()
+    result = finite_json(case_runs.run_case(name, sweep))
+    return result, time.perf_counter() - t0
+
+
+def _run_cases_on_dask(todo: dict, results: dict, units: dict, bar, workers, scheduler, client) -> None:
+    """The cases of ``todo`` as Dask tasks, each cached in ``cases/`` as it completes (a lost worker loses only
+    its unfinished case; rerunning the command reuses the others). Cases that run side by side share the
+    machine: their wall times are those of a loaded machine."""
+    from contextlib import nullcontext
+
+    from distributed import as_completed
+
+    opened = nullcontext(client) if client is not None else dask_client(workers, scheduler, lambda line: None)
+    with opened as c:
+        futures = {c.submit(_case_task, name, sweep, pure=False, key=f"tissuerender-case-{name}-{time.time()!r}"): name
+                   for name, (sweep, _, _) in todo.items()}
+        for future in as_completed(list(futures)):
+            name = futures[future]
+            result, wall = future.result()
+            _, key, path = todo[name]
+            write_json(path, {"kind": KIND, "key": key, "wall_s": wall, "result": result})
+            results[name] = {**result, "cached": False, "computed_wall_s": wall}
+            bar.advance(units[name])
+
+
 NOT_COVERED = [
     "rendering sweeps (light samples, estimators, SSS, supersampling; FLIP against high-sample references)",
     "the user's own scene (tissuerender report accuracy SCENE --budget ...)",
@@ -161,14 +197,14 @@ NOT_COVERED = [
     "quadratic (10-node) tetrahedra and mesh-converged references at several mesh levels",
     "the viscoelastic cube, the cantilever under gravity, Qian's claims (XPBD 1e-4 vs Newton 1e-5, "
     "light-sampling cost, frame-time breakdown) and Zhang's CNN cube (§4.3.2.2)",
-    "--workers (the cases run one after another)",
 ]
 
 
 def _cmd_accuracy(args) -> int:
     names = parse_cases(args.cases, args.quick)
     out = output_folder(args.out)
-    report = run_report(out, quick=args.quick, cases=names if args.cases else None, progress=not args.quiet)
+    report = run_report(out, quick=args.quick, cases=names if args.cases else None, progress=not args.quiet,
+                        workers=args.workers, scheduler=args.scheduler)
     if not args.quiet:
         verdicts = [row["verdict"] for row in report["claims"]]
         cached = sum(1 for c in report["cases"].values() if c["cached"])
@@ -186,4 +222,5 @@ def add_cli(subparsers) -> None:
     p.add_argument("--quick", action="store_true", help="coarser meshes, fewer settings and cases (about 2 minutes)")
     p.add_argument("--cases", default=None, help=f"comma-separated subset of {', '.join(case_runs.CASES)}")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+    add_dask_options(p, "cases")
     p.set_defaults(func=_cmd_accuracy)
