@@ -74,7 +74,7 @@ def test_two_worker_processes_render_every_file_byte_identical_to_the_serial_ren
     assert len(set(pids.values())) == 2 and os.getpid() not in pids.values()  # two processes, not this one
     out = root / "cli"
     assert main(["render", str(scene_path), "-o", str(out), "-q", "--scheduler", client.scheduler.address]) == 0
-    assert len(serial) == 6 * 5 + 2  # png, npy, vtu, two passes per frame; cameras.json, labels.json
+    assert len(serial) == 6 * 5 + 3  # png, npy, vtu, two passes per frame; cameras.json, labels.json, tool_forces.csv
     assert _outputs(out) == serial
     data = json.loads((out / "manifest.json").read_text())
     assert (data["complete"], data["frames_done_ranges"], data["states"]) == (True, "1-6", "simulated")

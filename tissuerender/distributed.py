@@ -21,6 +21,8 @@ import time
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
+import numpy as np
+
 from tissuerender import pipeline
 from tissuerender.errors import UserError
 from tissuerender.files import remove_temporaries
@@ -162,8 +164,12 @@ def _ensure_states(seq: pipeline.Sequence, resume: bool) -> str:
     when every one exists and comes from this scene file. Returns what happened, for the manifest."""
     if "simulate" not in seq.plan:
         return "not simulated"
-    # the tool forces come from the simulation (not kept in the states): a scene with contact simulates again
-    if resume and seq.tool_forces is None and states_complete(seq.out, seq.scene, seq.n_frames):
+    if resume and states_complete(seq.out, seq.scene, seq.n_frames):
+        if seq.tool_forces is not None:  # the forces the simulation found, kept in the states
+            for k in range(1, seq.n_frames + 1):
+                state = read_state(seq.out, k, seq.scene, len(seq.world.bodies))
+                seq.tool_forces.rows[k] = (state.t, np.array(state.tool_loads, dtype=np.float64))
+            seq.tool_forces.write(seq.out)
         return "reused"
     for k in range(1, seq.n_frames + 1):
         if k > 1:
@@ -237,6 +243,10 @@ def render_distributed(scene: Scene, out_dir, resume: bool = False, progress: bo
         raise
     finally:
         bar.close()
+    # every task has ended: a temporary left in the folder is a killed worker's, whose writer will never finish it
+    remove_temporaries(seq.out)
+    if (seq.out / "passes").is_dir():
+        remove_temporaries(seq.out / "passes")
     if missing:
         seq.record({"complete": False})
         first = missing[min(missing)]

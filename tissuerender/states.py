@@ -13,6 +13,8 @@ key                value
 ``x_<i>``          body ``i``'s node positions (n, 3) float64 [m], bodies in scene order
 ``v_<i>``          body ``i``'s node velocities (n, 3) float64 [m/s] (the .vtu output writes them)
 ``tool_<j>``       tool ``j``'s centre at ``t`` (3,) [m], as the probe's keyframed path gives it (informative)
+``tool_loads``     (tools, 6) force [N] and torque [N m] on each tool over the interval ending at ``t``
+                   (``tissuerender.world.ToolForceLog``), when the world resolves tool contact
 =================  ==========================================================================================
 
 float64 is stored as is, so a frame rendered from a state file is bit-identical to one rendered from the
@@ -47,6 +49,7 @@ class FrameState:
     t: float
     x: list[np.ndarray]
     v: list[np.ndarray]
+    tool_loads: np.ndarray | None = None
 
 
 def write_state(out: Path, k: int, world: World, scene: Scene) -> Path:
@@ -61,6 +64,8 @@ def write_state(out: Path, k: int, world: World, scene: Scene) -> Path:
         arrays[f"v_{i}"] = state.v
     for j, tool in enumerate(scene.tools):
         arrays[f"tool_{j}"] = make_probe(tool).position(t)
+    if world.tool_loads is not None:
+        arrays["tool_loads"] = np.zeros_like(world.tool_loads) if k == 1 else np.asarray(world.tool_loads, float)
     path = state_path(out, k)
 
     def write(tmp):
@@ -99,7 +104,8 @@ def read_state(out: Path, k: int, scene: Scene, n_bodies: int) -> FrameState:
                                 f"{scene.path} has {scene.sha256[:12]}…); {advice}")
             x = [data[f"x_{i}"] for i in range(n_bodies)]
             v = [data[f"v_{i}"] for i in range(n_bodies)]
-            return FrameState(int(data["frame"]), float(data["t"]), x, v)
+            loads = data["tool_loads"] if "tool_loads" in data.files else None
+            return FrameState(int(data["frame"]), float(data["t"]), x, v, loads)
     except FileNotFoundError:
         raise UserError(f"{path}: frame {k}'s simulation state is missing; {advice}") from None
     except (OSError, KeyError, ValueError, zipfile.BadZipFile, EOFError) as e:
