@@ -286,3 +286,11 @@ def with_overrides(optics: OpticalMaterial, overrides: dict) -> OpticalMaterial:
     if layer_values:
         values["layers"] = dataclasses.replace(optics.layers, **layer_values)
     return dataclasses.replace(optics, **values)
+
+
+def untextured(optics: OpticalMaterial) -> OpticalMaterial:
+    """``optics`` without its baked texture (uniform ``base_albedo``, no relief, no roughness map): the layer
+    stack's BSDF alone, e.g. to check shading against closed forms."""
+    if optics.layers is None or optics.layers.texture_seed is None:
+        return optics
+    return dataclasses.replace(optics, layers=dataclasses.replace(optics.layers, texture_seed=None))

@@ -305,16 +305,16 @@ def _table1(t, plane, alpha):
 @njit(cache=True, parallel=True)
 def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_scale, m, rotation, stride, phase,
                  centre, ln, eu, ev, eps, shadows, ray_offsets, occluded, kind, f0, k_sss, sigma, sss_colour, coat,
-                 coat_sigma, coat_E, schlick_E, schlick_E_avg, plastic, plastic_t, ratio, unshadowed, out):
+                 coat_sigma, coat_E, coat_norm, schlick_E, plastic, plastic_t, ratio, unshadowed, out):
     """Direct light of the area light at every point, into ``out`` (k, 3) (without the light's radiance).
 
     Per point: ``albedo`` (k, 3) and ``alpha`` (textured where the material has a bake), material id
     ``mat``, SSS ``thickness`` (used when ``has_sss``), ``granular_scale`` (the roughness map's factor
     on the granular layer), ``m`` light samples with their rotation and stride/phase. Per material:
     ``kind`` (tissue / layered / plastic), ``f0``, ``k_sss``, ``sigma`` (3), ``sss_colour`` (3), ``coat``
-    (coat alpha, coat ior, coat thickness, granular weight, granular alpha, the coat lobe's average albedo),
-    ``coat_sigma`` (3), ``coat_E`` the coat lobe's albedo table, ``schlick_E`` (2, alphas, cosines) and
-    ``schlick_E_avg`` (2, alphas) the tissue lobe's Schlick split albedo tables (``bsdf.albedo``),
+    (coat alpha, coat ior, coat thickness, granular weight, granular alpha), ``coat_sigma`` (3), ``coat_E``
+    the coat lobe's albedo table, ``coat_norm`` (3, alphas) the normalisations of the lobes under it and
+    ``schlick_E`` (2, alphas, cosines) the tissue lobe's Schlick split albedo tables (``bsdf.albedo``),
     ``plastic`` (eta, 1 / (1 - F_dr), row in ``plastic_t``) and ``plastic_t`` the coating transmittance
     tables. With ``shadows``, sample s of point i that can contribute is visible unless ray
     ``ray_offsets[i] + s`` is ``occluded``.
@@ -362,13 +362,11 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
             ga = max(coat[mt, 4] * granular_scale[i], 1e-3)
             wg = coat[mt, 3]
             c_o = 1.0 - _table(coat_E, mt, n_v)
-            # (1 - E(mu_o)) / (1 - E_avg) of the tissue lobe (F0 = fr) and, over pi, of the granular lobe
+            # X(mu_o) / N of the diffuse lobe under the tissue lobe (F0 = fr) and, over pi, of the granular one
             Es_o = fr * _table2(schlick_E, 0, a, n_v) + _table2(schlick_E, 1, a, n_v)
-            Es_avg = fr * _table1(schlick_E_avg, 0, a) + _table1(schlick_E_avg, 1, a)
-            ds_o = (1.0 - Es_o) / (1.0 - Es_avg)
+            ds_o = c_o * (1.0 - Es_o) / (_table1(coat_norm[mt], 0, a) - fr * _table1(coat_norm[mt], 1, a))
             g_o = _table2(schlick_E, 0, ga, n_v) + _table2(schlick_E, 1, ga, n_v)
-            g_avg = _table1(schlick_E_avg, 0, ga) + _table1(schlick_E_avg, 1, ga)
-            ms_o = (1.0 - g_o) / max(np.pi * (1.0 - g_avg), 1e-12)
+            ms_o = c_o * (1.0 - g_o) / max(np.pi * _table1(coat_norm[mt], 2, ga), 1e-12)
         mi = m[i]
         r = ray_offsets[i]
         acc_r = 0.0  # specular (and everything not diffuse): plain Monte Carlo
@@ -419,12 +417,11 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
                 spec = _ggx_D(n_h, a) * _smith_vis(n_v, n_l, a) * F * n_l
                 trans = (28.0 / 23.0) * (1.0 - fr) * (1.0 - (1.0 - 0.5 * n_l) ** 5) * t_v * n_l
                 if kd == KIND_LAYERED:
-                    # the wet stack (bsdf.mucosa): coat lobe, then T_s over the specular lobes and T_d over
-                    # the diffuse ones, each lobe pair made energy preserving by its albedo table
+                    # the wet stack (bsdf.mucosa): coat lobe, T_s over the specular lobes, the diffuse lobes
+                    # scaled by what the coat and the lobe above them leave, X(mu_i) X(mu_o) / N
                     spec_coat = _ggx_D(n_h, ca) * _smith_vis(n_v, n_l, ca) * _dielectric_F(v_h, ior) * n_l
                     c_i = 1.0 - _table(coat_E, mt, n_l)
                     T_s = np.sqrt(c_i * c_o)
-                    T_d = c_i * c_o / (1.0 - coat[mt, 5])
                     path = coat[mt, 2] * (1.0 / max(_refracted_cos(n_l, ior), 1e-3)
                                           + 1.0 / max(_refracted_cos(n_v, ior), 1e-3))
                     f_s = _ggx_D(n_h, a) * _smith_vis(n_v, n_l, a) * F * n_l
@@ -433,8 +430,8 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
                     s_B = _table2(schlick_E, 1, a, n_l)
                     Es_i = fr * s_A + s_B
                     g_i = _table2(schlick_E, 0, ga, n_l) + _table2(schlick_E, 1, ga, n_l)
-                    f_ms = (1.0 - g_i) * ms_o * n_l
-                    sdiff = (1.0 - Es_i) * ds_o * n_l
+                    f_ms = c_i * (1.0 - g_i) * ms_o * n_l
+                    sdiff = c_i * (1.0 - Es_i) * ds_o * n_l
                     under = T_s * ((1.0 - wg) * f_s + wg * f_g)
                     t0 = np.exp(-coat_sigma[mt, 0] * path) * weight
                     t1 = np.exp(-coat_sigma[mt, 1] * path) * weight
@@ -442,9 +439,9 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
                     acc_r += spec_coat * weight + t0 * under
                     acc_g += spec_coat * weight + t1 * under
                     acc_b += spec_coat * weight + t2 * under
-                    dif_r += t0 * T_d * ((1.0 - wg) * dr * sdiff + wg * f_ms)
-                    dif_g += t1 * T_d * ((1.0 - wg) * dg * sdiff + wg * f_ms)
-                    dif_b += t2 * T_d * ((1.0 - wg) * db * sdiff + wg * f_ms)
+                    dif_r += t0 * ((1.0 - wg) * dr * sdiff + wg * f_ms)
+                    dif_g += t1 * ((1.0 - wg) * dg * sdiff + wg * f_ms)
+                    dif_b += t2 * ((1.0 - wg) * db * sdiff + wg * f_ms)
                 else:
                     acc_r += spec * weight
                     acc_g += spec * weight

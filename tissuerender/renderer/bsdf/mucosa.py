@@ -19,40 +19,40 @@ The tissue under the coat keeps its ``roughness`` (alpha), ``ior`` (Schlick F0) 
 directional albedos of :mod:`.albedo` (``E_c`` the coat lobe's, ``E_s`` the tissue lobe's for its F0,
 ``E_1`` the F = 1 granular lobe's) and ``E_avg`` their cosine-weighted averages::
 
-    f cos = f_c cos + A [ T_s ((1 - w_g) f_s cos + w_g f_g cos) + T_d ((1 - w_g) f_d cos + w_g f_ms cos) ]
+    f cos = f_c cos + A [ T_s ((1 - w_g) f_s cos + w_g f_g cos) + (1 - w_g) f_d cos + w_g f_ms cos ]
 
-    T_d  = (1 - E_c(mu_i)) (1 - E_c(mu_o)) / (1 - E_c_avg)         (the coat over a diffuse lobe)
-    T_s  = sqrt((1 - E_c(mu_i)) (1 - E_c(mu_o)))                   (the coat over a specular lobe)
-    f_d  = (albedo / pi + sss) (1 - E_s(mu_i)) (1 - E_s(mu_o)) / (1 - E_s_avg)
-    f_ms = (1 - E_1(mu_i)) (1 - E_1(mu_o)) / (pi (1 - E_1_avg))    (Kulla & Conty 2017 multiple scattering)
+    T_s  = sqrt(c(mu_i) c(mu_o)),  c(mu) = 1 - E_c(mu)               (the coat over a specular lobe)
+    f_d  = (albedo / pi + sss) X(mu_i) X(mu_o) / N_s,   X = c (1 - E_s),  N_s = 2 int X mu dmu
+    f_ms = 1 / pi X_1(mu_i) X_1(mu_o) / N_1,   X_1 = c (1 - E_1),  N_1 = 2 int X_1 mu dmu
+                                                                 (Kulla & Conty 2017 multiple scattering)
 
 Derivation (white furnace: albedo 1, no absorption, no SSS, uniform unit radiance). The coat reflects
 ``E_c(mu_o)``, so energy conservation leaves ``1 - E_c(mu_o)`` for the layers under it: the base is
 attenuated by (1 - F_coat), where for a rough coat F_coat is its directional albedo E_c (for a smooth
-coat E_c(mu) = F(mu), the Fresnel reflectance). A Lambertian lobe weighted by ``(1 - E_c(mu_i))`` returns
-``int (1 - E_c(mu_i)) mu_i / pi dw_i = 1 - E_c_avg``, hence T_d is exact; a narrow specular lobe sends light
-back near ``mu_i = mu_o``, where T_s = 1 - E_c(mu_o), also exact (rough lobes in between: the furnace test
-bounds the difference, < 1 %). Within the base the same argument with E_s (tissue) and E_1 (granular)
-makes each lobe pair return exactly 1, so the stack returns ``E_c + (1 - E_c) 1 = 1``: energy preserving,
-reciprocal (every factor is symmetric in mu_i, mu_o), and A <= 1, albedo <= 1 only take energy away.
+coat E_c(mu) = F(mu), the Fresnel reflectance). The tissue's lobe takes ``E_s(mu_o)`` of that; a diffuse
+lobe ``X(mu_i) X(mu_o) / N`` returns ``X(mu_o) int X(mu_i) mu_i / pi dw_i / N = X(mu_o)``, exactly what is
+left, ``(1 - E_c(mu_o)) (1 - E_s(mu_o))``; a narrow specular lobe sends light back near ``mu_i = mu_o``,
+where T_s = c(mu_o), so it returns ``c(mu_o) E_s(mu_o)`` (rough lobes in between: the furnace test bounds
+the difference, < 1 %). The granular lobe (weight w_g, F = 1) pairs with f_ms the same way. In total
+``E_c + c [E_s + (1 - E_s)] = 1``: energy preserving, reciprocal (every factor is symmetric in mu_i, mu_o),
+and absorption A <= 1 and albedo <= 1 only take energy away. The normalisations N (``albedo.coat_norms``)
+are integrals of the product, not products of averages: both albedos rise towards grazing.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from materials.optics import TissueLayers
-from tissuerender.renderer.bsdf.albedo import (coat_table, lookup_alpha, lookup_alpha_mu, lookup_mu,
+from tissuerender.renderer.bsdf.albedo import (coat_norms, coat_table, lookup_alpha, lookup_alpha_mu, lookup_mu,
                                                schlick_tables)
 from tissuerender.renderer.bsdf.microfacet import (angle_cosines, dielectric_F, ggx_D, refracted_cos, schlick_F,
                                                    smith_visibility)
 from tissuerender.renderer.shade_kernel import KIND_LAYERED
 
 
-def tissue_albedo(alpha, f0, mu):
-    """E_s(mu) of the tissue's Cook–Torrance lobe and its average E_s_avg, per point (Schlick split tables)."""
-    E, avg = schlick_tables()
-    return f0 * lookup_alpha_mu(E[0], alpha, mu) + lookup_alpha_mu(E[1], alpha, mu), \
-        f0 * lookup_alpha(avg[0], alpha) + lookup_alpha(avg[1], alpha)
+def tissue_albedo(E, alpha, f0, mu):
+    """E_s(mu) of the tissue's Cook–Torrance lobe (Schlick F0 = ``f0``) per point, from the split tables ``E``."""
+    return f0 * lookup_alpha_mu(E[0], alpha, mu) + lookup_alpha_mu(E[1], alpha, mu)
 
 
 def layered_reflectance_cos(n, wo, wi, albedo, alpha, f0, sss, coat_alpha, coat_ior, coat_thickness, coat_sigma,
@@ -61,9 +61,11 @@ def layered_reflectance_cos(n, wo, wi, albedo, alpha, f0, sss, coat_alpha, coat_
 
     Per point: ``albedo`` (k, 3), tissue ``alpha`` and ``f0`` (k,), the subsurface correction ``sss``
     (k, 3) or None, ``coat_sigma`` (k, 3), ``granular_alpha`` and ``granular_weight`` (k,); the coat's
-    ``coat_alpha``, ``coat_ior`` and ``coat_thickness`` are the material's scalars (its albedo table).
+    ``coat_alpha``, ``coat_ior`` and ``coat_thickness`` are the material's scalars (its albedo tables).
     """
-    E_c, E_c_avg = coat_table(float(coat_alpha), float(coat_ior))
+    E_c, _ = coat_table(float(coat_alpha), float(coat_ior))
+    norms = coat_norms(float(coat_alpha), float(coat_ior))
+    E, _ = schlick_tables()
     a = np.maximum(alpha, 1e-3)
     ga = np.maximum(granular_alpha, 1e-3)
     ca = max(float(coat_alpha), 1e-3)
@@ -71,21 +73,20 @@ def layered_reflectance_cos(n, wo, wi, albedo, alpha, f0, sss, coat_alpha, coat_
     f_c = ggx_D(n_h, ca) * smith_visibility(n_v, n_l, ca) * dielectric_F(v_h, coat_ior) * n_l
     c_i, c_o = 1.0 - lookup_mu(E_c, n_l), 1.0 - lookup_mu(E_c, n_v)
     T_s = np.sqrt(c_i * c_o)
-    T_d = c_i * c_o / (1.0 - E_c_avg)
     path = 1.0 / np.maximum(refracted_cos(n_l, coat_ior), 1e-3) + 1.0 / np.maximum(refracted_cos(n_v, coat_ior), 1e-3)
     A = np.exp(-coat_sigma * (coat_thickness * path)[:, None])
     f_s = ggx_D(n_h, a) * smith_visibility(n_v, n_l, a) * schlick_F(v_h, f0) * n_l
-    Es_i, Es_avg = tissue_albedo(a, f0, n_l)
-    Es_o, _ = tissue_albedo(a, f0, n_v)
+    X_o = c_o * (1.0 - tissue_albedo(E, a, f0, n_v))
+    N_s = lookup_alpha(norms[0], a) - f0 * lookup_alpha(norms[1], a)
     diffuse = albedo / np.pi if sss is None else albedo / np.pi + sss
-    f_d = diffuse * ((1.0 - Es_i) * (1.0 - Es_o) / (1.0 - Es_avg) * n_l)[:, None]
+    f_d = diffuse * (c_i * (1.0 - tissue_albedo(E, a, f0, n_l)) * (X_o / N_s) * n_l)[:, None]
     f_g = ggx_D(n_h, ga) * smith_visibility(n_v, n_l, ga) * n_l
-    E1_i, E1_avg = tissue_albedo(ga, 1.0, n_l)
-    E1_o, _ = tissue_albedo(ga, 1.0, n_v)
-    f_ms = (1.0 - E1_i) * (1.0 - E1_o) / np.maximum(np.pi * (1.0 - E1_avg), 1e-12) * n_l
+    X1_o = c_o * (1.0 - tissue_albedo(E, ga, 1.0, n_v))
+    N_1 = lookup_alpha(norms[2], ga)
+    f_ms = c_i * (1.0 - tissue_albedo(E, ga, 1.0, n_l)) * (X1_o / np.maximum(np.pi * N_1, 1e-12)) * n_l
     wg = granular_weight
     spec = T_s * ((1.0 - wg) * f_s + wg * f_g)
-    return f_c[:, None] + A * (spec[:, None] + T_d[:, None] * ((1.0 - wg)[:, None] * f_d + (wg * f_ms)[:, None]))
+    return f_c[:, None] + A * (spec[:, None] + (1.0 - wg)[:, None] * f_d + (wg * f_ms)[:, None])
 
 
 def layer_arrays(optics, mat, rough_factor=None):
@@ -140,11 +141,11 @@ class LayeredMucosa:
                                        lay["granular_weight"][idx], lay["granular_alpha"][idx])
 
     def kernel_row(self, mid, tables):
-        """The stack's row of the kernel's ``coat`` table (with the coat lobe's average albedo), its
-        ``coat_sigma`` and its row of the coat albedo table ``coat_E``."""
+        """The stack's row of the kernel's ``coat`` and ``coat_sigma`` tables, of the coat albedo table
+        ``coat_E`` and of the diffuse normalisations ``coat_norm`` (``albedo.coat_norms``)."""
         st = self.optics.layers
-        E_c, E_c_avg = coat_table(st.coat_roughness, st.coat_ior)
         tables["coat"][mid] = (st.coat_roughness, st.coat_ior, st.coat_thickness, st.granular_weight,
-                               st.granular_roughness, E_c_avg)
+                               st.granular_roughness)
         tables["coat_sigma"][mid] = st.coat_absorption
-        tables["coat_E"][mid] = E_c
+        tables["coat_E"][mid] = coat_table(st.coat_roughness, st.coat_ior)[0]
+        tables["coat_norm"][mid] = coat_norms(st.coat_roughness, st.coat_ior)
