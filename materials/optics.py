@@ -199,7 +199,7 @@ OPTICS: dict[str, OpticalMaterial] = {
                                                     25, coat_roughness=0.04, granular_weight=0.03,
                                                     granular_roughness=0.25, vessel_density=1.0, **SEROUS)),
     # Colon mucosa: wet, glossy, pink; mu_s' ~ 1.5/mm, mu_a(620) ~ 0.05/mm [Bashkatov05] -> 0.5/mm red.
-    "colon_mucosa": OpticalMaterial(albedo=(0.62, 0.28, 0.24), roughness=0.18, ior=1.35, k_sss=0.4,
+    "colon_mucosa": OpticalMaterial(albedo=COLON_LAYERS.base_albedo, roughness=0.18, ior=1.35, k_sss=0.4,
                                     sigma=(500.0, 1800.0, 2600.0), sss_colour=(0.85, 0.3, 0.25),
                                     layers=COLON_LAYERS),
     # Small bowel mucosa: like the colon's [Bashkatov05], redder and more vascular, with dense circular folds

@@ -241,7 +241,7 @@ def _fat(size, seed, density):
     dome = 1.0 - np.clip(f1 * 6 / 0.8, 0.0, 1.0) ** 2  # lobules bulge
     value = np.clip(0.2 + 0.7 * inside + 0.1 * quadtree(size, MOTTLE, seed), 0.0, 1.0)
     vessels = vessel_mask(size, seed + 1, density, roots=3, attractors=200, leaf_radius=0.0008)
-    return Pattern(value, vessels * (1.0 - 0.7 * inside), 0.5 * dome * inside + 0.2 * value)
+    return Pattern(value, vessels * (1.0 - 0.9 * inside), 0.5 * dome * inside + 0.2 * value)  # vessels in the septa
 
 
 def _fibrous(size, seed, density, vessel_roots=1):

@@ -50,7 +50,7 @@ def _cosine_directions(N):
     return np.stack([r * np.cos(2 * np.pi * u2), r * np.sin(2 * np.pi * u2), np.sqrt(1 - u1)], axis=1)
 
 
-def furnace_albedo(layers, alpha, f0, theta, N=160):
+def furnace_albedo(layers, alpha, f0, theta, N=112):
     """int f(wi, wo) cos dwi over the hemisphere for albedo 1, no absorption, no SSS: a deterministic
     multi-technique quadrature (balance heuristic over a cosine grid and one GGX half-vector grid per
     distinct lobe roughness; each N x N midpoints), independent of the model's albedo tables."""
@@ -77,37 +77,38 @@ def furnace_albedo(layers, alpha, f0, theta, N=160):
 @pytest.mark.parametrize("roughness", [0.05, 0.25, 0.6])
 def test_white_furnace_every_layered_preset_returns_what_arrives(roughness):
     """Albedo 1, no absorption, uniform white light: coat + everything under it returns 1 within 1 % at
-    0, 45 and 75 degrees (the model is built to return exactly 1: bsdf.mucosa's derivation; what is left is
-    the albedo tables' quadrature and interpolation, ~1e-3, the split of a rough inner lobe between T_s and
-    T_d, and this quadrature's own error, ~1e-3 at N = 160)."""
-    worst = []
+    0, 45 and 75 degrees, never more (bsdf.mucosa's derivation: the diffuse share is exact, the specular
+    lobes under the coat get at most what it leaves). Left over: the albedo tables' quadrature and
+    interpolation (~1e-3), what min(c_i, c_o) drops of a lobe (up to 0.9 % at 75 degrees with smooth lobes),
+    and this quadrature's own error (~1e-3 at N = 112, hence the 0.2 % above 1; measured 0.9904 ... 1.0012)."""
+    energies = []
     for name in LAYERED:
         optics = materials.get_preset(name).optics
         layers = dataclasses.replace(optics.layers, coat_roughness=roughness, granular_roughness=roughness)
         for theta_deg in (0.0, 45.0, 75.0):
-            e = furnace_albedo(layers, roughness, optics.f0, np.radians(theta_deg))
-            worst.append((abs(e - 1.0), name, theta_deg, e))
-    assert max(worst)[0] < 0.01, max(worst)
+            energies.append((furnace_albedo(layers, roughness, optics.f0, np.radians(theta_deg)), name, theta_deg))
+    assert 0.99 < min(energies)[0] and max(energies)[0] < 1.002, (min(energies), max(energies))
 
 
-def test_furnace_quadrature_sees_energy_loss_when_the_coat_is_not_compensated():
-    """The furnace check can fail: the same quadrature on a stack whose base is attenuated twice by the coat
-    (T_d applied on top of T_d, i.e. a wrong model) reads clearly below 1."""
+def test_furnace_fails_a_stack_that_does_not_attenuate_the_base_by_the_coat(monkeypatch):
+    """The furnace check can fail: with the coat's albedo table replaced by zeros (the base no longer gives up
+    what the coat reflects) the same quadrature reads 1 + E_c, about 6 % high for ior 1.8 at 45 degrees."""
     optics = materials.get_preset("liver").optics
     layers = dataclasses.replace(optics.layers, coat_roughness=0.3, coat_ior=1.8)
     good = furnace_albedo(layers, 0.3, optics.f0, np.radians(45.0))
-    # coat_ior 1.8 reflects ~8 % at normal incidence: a model that lost the base's share would read ~0.9
-    brighter_coat = dataclasses.replace(layers, coat_ior=2.5)
-    assert abs(good - 1.0) < 0.01 and abs(furnace_albedo(brighter_coat, 0.3, optics.f0, np.radians(45.0)) - 1) < 0.01
-    k = 4
-    n = np.tile([0.0, 0.0, 1.0], (k, 1))
-    wo = np.tile([np.sin(0.5), 0.0, np.cos(0.5)], (k, 1))
-    wi = _cosine_directions(2)
-    args = (np.ones((k, 3)), np.full(k, 0.3), np.full(k, optics.f0), None, 0.3)
-    tail = (layers.coat_thickness, np.zeros((k, 3)), np.full(k, 0.0), np.full(k, 0.3))
-    low = layered_reflectance_cos(n, wo, wi, *args, 1.0, *tail)
-    high = layered_reflectance_cos(n, wo, wi, *args, 2.5, *tail)
-    assert np.all(high[:, 0] < low[:, 0])  # away from the mirror direction, a brighter coat leaves the base less
+    from tissuerender.renderer.bsdf import albedo, mucosa
+    E_c, nodes = albedo.coat_table(0.3, 1.8)
+    monkeypatch.setattr(mucosa, "coat_table", lambda a, ior: (np.zeros_like(E_c), np.zeros_like(nodes)))
+    monkeypatch.setattr(mucosa, "coat_norms", lambda a, ior: _norms_without_coat(nodes.size))
+    wrong = furnace_albedo(layers, 0.3, optics.f0, np.radians(45.0))
+    assert abs(good - 1.0) < 0.01 and wrong > 1.04
+
+
+def _norms_without_coat(n):
+    from tissuerender.renderer.bsdf import albedo
+    _, s_nodes = albedo.schlick_tables()
+    _, weights = albedo.average_nodes()
+    return np.stack([(1.0 - s_nodes[1]) @ weights, s_nodes[0] @ weights, (1.0 - s_nodes[0] - s_nodes[1]) @ weights])
 
 
 # --- textures ---------------------------------------------------------------------------------------------
@@ -172,7 +173,7 @@ def test_every_tissue_preset_is_layered_and_textured_with_vessels():
         optics = materials.get_preset(name).optics
         assert optics.layers is not None and optics.layers.texture_seed is not None, name
         assert np.allclose(optics.layers.base_albedo, optics.albedo), name  # the stack keeps the preset's colour
-        albedo = optics.layers.baked_albedo()
+        albedo = dataclasses.replace(optics.layers, texture_size=64).baked_albedo()  # small: the test's time
         assert np.allclose(albedo.reshape(-1, 3).mean(axis=0), optics.albedo, rtol=0.05, atol=0.005), name
         vessels = patterns.pattern(optics.layers.pattern, 64, optics.layers.texture_seed, optics.layers.vessel_density)
         assert 0.002 < vessels.vessels.mean() < 0.2, name
@@ -232,7 +233,7 @@ def test_scene_optics_table_takes_layer_keys_and_refuses_them_for_plastic(tmp_pa
 def test_lookdev_sets_and_sweeps_layer_keys(tmp_path, capsys):
     out = tmp_path / "sheet.png"
     assert main(["lookdev", "kidney", "--set", "coat_roughness=0.05", "--sweep", "granular_weight=[0.0, 0.3]",
-                 "--resolution", "32x24", "--samples", "2", "-q", "-o", str(out)]) == 0
+                 "--resolution", "16x12", "--samples", "1", "-q", "-o", str(out)]) == 0
     report = json.loads(out.with_suffix(".json").read_text())
     assert [c["overrides"] for c in report["cells"]] == [{"coat_roughness": 0.05, "granular_weight": 0.0},
                                                           {"coat_roughness": 0.05, "granular_weight": 0.3}]

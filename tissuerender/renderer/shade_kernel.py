@@ -421,7 +421,7 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
                     # scaled by what the coat and the lobe above them leave, X(mu_i) X(mu_o) / N
                     spec_coat = _ggx_D(n_h, ca) * _smith_vis(n_v, n_l, ca) * _dielectric_F(v_h, ior) * n_l
                     c_i = 1.0 - _table(coat_E, mt, n_l)
-                    T_s = np.sqrt(c_i * c_o)
+                    T_s = min(c_i, c_o)
                     path = coat[mt, 2] * (1.0 / max(_refracted_cos(n_l, ior), 1e-3)
                                           + 1.0 / max(_refracted_cos(n_v, ior), 1e-3))
                     f_s = _ggx_D(n_h, a) * _smith_vis(n_v, n_l, a) * F * n_l

@@ -21,7 +21,7 @@ directional albedos of :mod:`.albedo` (``E_c`` the coat lobe's, ``E_s`` the tiss
 
     f cos = f_c cos + A [ T_s ((1 - w_g) f_s cos + w_g f_g cos) + (1 - w_g) f_d cos + w_g f_ms cos ]
 
-    T_s  = sqrt(c(mu_i) c(mu_o)),  c(mu) = 1 - E_c(mu)               (the coat over a specular lobe)
+    T_s  = min(c(mu_i), c(mu_o)),  c(mu) = 1 - E_c(mu)               (the coat over a specular lobe)
     f_d  = (albedo / pi + sss) X(mu_i) X(mu_o) / N_s,   X = c (1 - E_s),  N_s = 2 int X mu dmu
     f_ms = 1 / pi X_1(mu_i) X_1(mu_o) / N_1,   X_1 = c (1 - E_1),  N_1 = 2 int X_1 mu dmu
                                                                  (Kulla & Conty 2017 multiple scattering)
@@ -72,7 +72,7 @@ def layered_reflectance_cos(n, wo, wi, albedo, alpha, f0, sss, coat_alpha, coat_
     n_l, n_v, n_h, v_h = angle_cosines(n, wo, wi)
     f_c = ggx_D(n_h, ca) * smith_visibility(n_v, n_l, ca) * dielectric_F(v_h, coat_ior) * n_l
     c_i, c_o = 1.0 - lookup_mu(E_c, n_l), 1.0 - lookup_mu(E_c, n_v)
-    T_s = np.sqrt(c_i * c_o)
+    T_s = np.minimum(c_i, c_o)
     path = 1.0 / np.maximum(refracted_cos(n_l, coat_ior), 1e-3) + 1.0 / np.maximum(refracted_cos(n_v, coat_ior), 1e-3)
     A = np.exp(-coat_sigma * (coat_thickness * path)[:, None])
     f_s = ggx_D(n_h, a) * smith_visibility(n_v, n_l, a) * schlick_F(v_h, f0) * n_l
