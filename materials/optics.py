@@ -262,8 +262,9 @@ def optical_value(optics: OpticalMaterial, key: str):
 def with_overrides(optics: OpticalMaterial, overrides: dict) -> OpticalMaterial:
     """``optics`` with some of its :data:`OVERRIDABLE` values replaced (tuples for the RGB ones).
 
-    On a layered material ``albedo`` sets both tissue layers' colours (connective and deep) to it, so the
-    stack's diffuse albedo is exactly ``albedo`` (the texture keeps its pattern, vessels and relief).
+    On a layered material ``albedo`` scales both tissue layers' colours (connective and deep) per channel so
+    that the stack's diffuse albedo becomes ``albedo`` (colours clipped at 1); the texture keeps its
+    pattern, contrast, vessels and relief, and the preset's own albedo changes nothing.
     Raises ``ValueError`` naming the key for a value the material does not use: the ``roughplastic``
     reference has no subsurface term (``k_sss``, ``sigma``, ``sss_colour``) and no layers. Ranges are the
     scene schema's business (``tissuerender.scene.optics_schema``)."""
@@ -281,8 +282,18 @@ def with_overrides(optics: OpticalMaterial, overrides: dict) -> OpticalMaterial:
     values = {k: tuple(float(c) for c in v) if isinstance(v, (list, tuple)) else float(v) for k, v in overrides.items()}
     layer_values = {k: values.pop(k) for k in LAYER_KEYS if k in values}
     if optics.layers is not None and "albedo" in values:
-        layer_values.setdefault("connective_colour", values["albedo"])
-        layer_values.setdefault("submucosa_colour", values["albedo"])
+        # both tissue layers' colours scaled per channel by albedo / base_albedo: base_albedo is linear in
+        # them, so it becomes ``albedo`` (unless a colour clips at 1) and the preset's own value changes nothing
+        st = dataclasses.replace(optics.layers, **layer_values)
+        base = np.asarray(st.base_albedo)
+        target = np.asarray(values["albedo"])
+        scale = np.where(base > 0.0, target / np.where(base > 0.0, base, 1.0), 1.0)
+        # base_albedo's few operations round by a few ulps: a scale within 1e-12 of 1 is the preset's value
+        scale = np.where(np.abs(scale - 1.0) < 1e-12, 1.0, scale)
+        for key in ("connective_colour", "submucosa_colour"):
+            colour = np.asarray(getattr(st, key))
+            scaled = np.where(base > 0.0, colour * scale, target)
+            layer_values[key] = tuple(float(c) for c in np.minimum(scaled, 1.0))
     if layer_values:
         values["layers"] = dataclasses.replace(optics.layers, **layer_values)
     return dataclasses.replace(optics, **values)

@@ -110,7 +110,7 @@ class OpticsOverride(LayerOverride):
     ``tissuerender lookdev`` prints for a look to keep."""
 
     albedo: UnitRGB | None = Field(None, description=(
-        "diffuse albedo (linear RGB); on a layered material both tissue layers' colours (the texture keeps its pattern)"))
+        "diffuse albedo (linear RGB); on a layered material both tissue layers' colours are scaled to give it"))
     roughness: Annotated[float, Field(ge=1e-3, le=1.0)] | None = Field(None, description=(
         "GGX alpha of the tissue's specular lobe (under a layered material's wet coat, which keeps its own)"))
     ior: Annotated[float, Field(ge=1.0, le=3.0)] | None = Field(None, description=(
