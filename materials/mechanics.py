@@ -62,8 +62,12 @@ MECHANICS: dict[str, Mechanics] = {
     "liver": Mechanics(E=4600.0, nu=0.47, density=1060.0),
     # [Bensamoun08] mu ~ 2 kPa -> E ~ 6 kPa; [Duck90] density.
     "kidney": Mechanics(E=6000.0, nu=0.47, density=1050.0),
+    # gallbladder wall: thin muscular wall; modelled like the colon wall [Christensen15] (design value).
+    "gallbladder": Mechanics(E=20000.0, nu=0.45, density=1040.0),
     # [Christensen15] colon wall; viscoelastic relaxation of the order of a second ([Zhang17] form).
     "colon_mucosa": Mechanics(E=20000.0, nu=0.45, density=1040.0, prony=((0.5, 0.58),)),
+    # small bowel wall: like the colon wall [Christensen15], with the same relaxation form ([Zhang17]).
+    "small_bowel": Mechanics(E=15000.0, nu=0.45, density=1040.0, prony=((0.5, 0.58),)),
     # [Samani07] fat 3.25 kPa; [Duck90] 916-950 kg/m^3.
     "fat": Mechanics(E=3250.0, nu=0.49, density=930.0),
     # [Stecco11] fibrous sheet, fibres in-plane (x); capped at 200 kPa.
@@ -72,6 +76,9 @@ MECHANICS: dict[str, Mechanics] = {
     ),
     # thin serous membrane over organs; modelled like a stiffened connective layer.
     "peritoneum": Mechanics(E=30000.0, nu=0.45, density=1050.0),
+    # vessel wall: 0.1-1 MPa at physiological strain (Humphrey, Cardiovascular Solid Mechanics, 2002);
+    # capped at 200 kPa like fascia so scenes stay well conditioned; blood-filled: [Duck90] ~1060.
+    "vessels": Mechanics(E=200000.0, nu=0.45, density=1060.0),
     # The [Zhang17] benchmark material, paired with the plain reference optics.
     "plastic": Mechanics(E=3000.0, nu=0.49, density=1000.0, constitutive="neo_hookean"),
 }

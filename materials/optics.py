@@ -30,12 +30,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from materials.textures import bake_layer
+from materials.patterns import PATTERNS, pattern
+from materials.textures import normal_map
 
 
 @dataclass(frozen=True)
-class MucosaLayers:
-    """The four layers of a mucosa (Qian §6.2.3, Figs. 6.8–6.9), top to bottom:
+class TissueLayers:
+    """The layers of a wet tissue, after the four of a mucosa (Qian §6.2.3, Figs. 6.8–6.9), top to bottom:
 
     1. epithelium + mucus: a smooth dielectric clear coat (GGX, ``coat_roughness``, ``coat_ior``) of
        thickness ``coat_thickness`` [m] with absorption ``coat_absorption`` [1/m] per RGB channel;
@@ -45,8 +46,9 @@ class MucosaLayers:
        ``connective_thickness`` [m] and absorption ``connective_absorption`` [1/m];
     4. submucosa (vessels): diffuse ``submucosa_colour`` under it.
 
-    Layers combine through transmittance (``tissuerender.renderer.bsdf.mucosa``), so
-    the stack never reflects more than arrives (white-furnace test).
+    Layers combine through the coat's albedo (``tissuerender.renderer.bsdf.mucosa``, derivation there), so
+    the stack returns what arrives in a white furnace and less with absorption. ``pattern`` names the
+    procedural texture (``materials.patterns``: lobules, folds, fibres, vessel trees) baked once per material.
     """
 
     coat_roughness: float = 0.06
@@ -64,6 +66,11 @@ class MucosaLayers:
     texture_size: int = 256
     vessel_density: float = 1.2
     bump: float = 0.004  # relief height, in texture widths (0.004 x 3 cm = 0.12 mm)
+    pattern: str = "colon_folds"  # materials.patterns.PATTERNS
+
+    def __post_init__(self):
+        if self.pattern not in PATTERNS:
+            raise ValueError(f"pattern: expected one of {', '.join(PATTERNS)}, found {self.pattern!r}")
 
     def baked_albedo(self):
         """(size, size, 3) base albedo texture: the connective-tissue mottle between the submucosa and
@@ -91,20 +98,27 @@ class MucosaLayers:
         return tuple(out)
 
 
-@functools.lru_cache(maxsize=8)
-def _bake(layers: MucosaLayers):
+@functools.lru_cache(maxsize=16)
+def _bake(layers: TissueLayers):
+    """(albedo, normal, roughness factor) of the layer stack's pattern: the value field through the palette
+    (deep colour, base, connective colour), vessels tinting towards the deep colour at half its value
+    (haemoglobin absorbs), the mean rescaled to ``base_albedo``; roughness 0.7 ... 1.3 x following the value."""
     base = np.asarray(layers.base_albedo)
-    palette = np.stack([np.asarray(layers.submucosa_colour), base, np.asarray(layers.connective_colour)])
-    nominal = 0.3
-    baked = bake_layer(layers.texture_size, palette, nominal, layers.texture_seed, vessel_density=layers.vessel_density,
-                       bump=layers.bump)
-    rough = baked.roughness / nominal
-    rough.setflags(write=False)
-    albedo = baked.albedo * (base / np.maximum(baked.albedo.reshape(-1, 3).mean(axis=0), 1e-6))
-    albedo = np.clip(albedo, 0.0, 1.0)
-    albedo.setflags(write=False)
-    baked.normal.setflags(write=False)
-    return albedo, baked.normal, rough
+    deep = np.asarray(layers.submucosa_colour)
+    palette = np.stack([deep, base, np.asarray(layers.connective_colour)])
+    pat = pattern(layers.pattern, layers.texture_size, layers.texture_seed, layers.vessel_density)
+    stops = np.linspace(0.0, 1.0, palette.shape[0])
+    albedo = np.stack([np.interp(pat.value, stops, palette[:, c]) for c in range(3)], axis=-1)
+    albedo = albedo * (1.0 - 0.7 * pat.vessels[..., None]) + 0.7 * pat.vessels[..., None] * 0.5 * deep
+    albedo = np.clip(albedo * (base / np.maximum(albedo.reshape(-1, 3).mean(axis=0), 1e-6)), 0.0, 1.0)
+    rough = np.clip(0.7 + 0.6 * pat.value, 0.7, 1.3)
+    normal = normal_map(pat.height, layers.bump)
+    for a in (albedo, rough, normal):
+        a.setflags(write=False)
+    return albedo, normal, rough
+
+
+MucosaLayers = TissueLayers  # the colon's stack came first; every tissue has one now
 
 
 # Colon mucosa layers. Mucus: mostly water, n = 1.33–1.35 (Hale & Querry 1973 for water; mucins add
@@ -114,7 +128,7 @@ def _bake(layers: MucosaLayers):
 # blood-rich submucosa [Jacques13]; layer thickness ~0.3–0.5 mm for the colonic mucosa (histology
 # texts, e.g. Ross & Pawlina). The coat roughness and granular weight are design choices (wet, glossy
 # highlights; a faint broad sheen from the granular layer).
-COLON_LAYERS = MucosaLayers(texture_seed=11)
+COLON_LAYERS = TissueLayers(texture_seed=11, pattern="colon_folds")
 
 
 @dataclass(frozen=True)
@@ -142,26 +156,86 @@ class OpticalMaterial:
         return ((self.ior - 1.0) / (self.ior + 1.0)) ** 2
 
 
+def stack_for(albedo, absorption, thickness, pattern, seed, contrast=0.4, **coat) -> TissueLayers:
+    """A layer stack whose mean diffuse albedo is ``albedo``: the deep layer ``(1 - y)`` times it, the
+    connective layer ``(1 + y e / (1 - e))`` times it (``e = exp(-2 absorption thickness)`` per channel), so
+    ``base_albedo = c3 (1 - e) + c4 e = albedo``; ``y = contrast``, less in a channel where the connective
+    colour would pass 1."""
+    e = np.exp(-2.0 * np.asarray(absorption, float) * thickness)
+    a = np.asarray(albedo, float)
+    y = np.minimum(contrast, (1.0 / a - 1.0) * (1.0 - e) / e)
+    connective = a * (1.0 + y * e / (1.0 - e))
+    deep = a * (1.0 - y)
+    return TissueLayers(connective_colour=tuple(float(c) for c in connective), connective_thickness=thickness,
+                        connective_absorption=tuple(float(c) for c in absorption),
+                        submucosa_colour=tuple(float(c) for c in deep), pattern=pattern, texture_seed=seed, **coat)
+
+
+# Wet coats. Serosa (liver, kidney, gallbladder, bowel outside, peritoneum): a film of serous fluid a few
+# to tens of micrometres thick (peritoneal fluid, n ~ 1.335, water-like), smooth: coat_roughness 0.04-0.1
+# (design: laparoscopic images show small sharp highlights). Connective absorption: blood-rich parenchyma
+# absorbs green and blue within a fraction of a millimetre [Jacques13]; fat and fascia little [Bashkatov05].
+SEROUS = dict(coat_ior=1.335, coat_thickness=20e-6, coat_absorption=(2.0, 3.0, 5.0))
+
 OPTICS: dict[str, OpticalMaterial] = {
     # Liver: strongly absorbing (blood-rich); mu_a(620) ~ 0.3/mm, mu_s' ~ 0.8/mm -> mu_eff ~ 0.95/mm.
+    # Lobules (1-2 mm, hexagonal) under Glisson's capsule: 16 across a 3 cm tile.
     "liver": OpticalMaterial(albedo=(0.40, 0.09, 0.07), roughness=0.35, ior=1.39, k_sss=0.25,
-                             sigma=(950.0, 3500.0, 4500.0), sss_colour=(0.7, 0.12, 0.08)),
-    # Kidney: similar perfusion, slightly lighter [Jacques13].
+                             sigma=(950.0, 3500.0, 4500.0), sss_colour=(0.7, 0.12, 0.08),
+                             layers=stack_for((0.40, 0.09, 0.07), (1500.0, 4000.0, 5000.0), 300e-6, "liver_lobules", 21,
+                                              coat_roughness=0.07, granular_weight=0.03, granular_roughness=0.3,
+                                              vessel_density=0.6, **SEROUS)),
+    # Kidney: similar perfusion, slightly lighter [Jacques13]; a smooth fibrous capsule with stellate veins.
     "kidney": OpticalMaterial(albedo=(0.45, 0.13, 0.10), roughness=0.35, ior=1.39, k_sss=0.3,
-                              sigma=(800.0, 3000.0, 4000.0), sss_colour=(0.75, 0.15, 0.1)),
+                              sigma=(800.0, 3000.0, 4000.0), sss_colour=(0.75, 0.15, 0.1),
+                              layers=stack_for((0.45, 0.13, 0.10), (1200.0, 3500.0, 4500.0), 300e-6, "capsule", 23,
+                                               coat_roughness=0.06, granular_weight=0.03, granular_roughness=0.3,
+                                               vessel_density=0.8, **SEROUS)),
+    # Gallbladder: a thin wall (1-3 mm) over green bile; bile absorbs red and blue (bilirubin/biliverdin),
+    # so the wall reads olive green; vessels of the cystic artery on the serosa. Design values.
+    "gallbladder": OpticalMaterial(albedo=(0.30, 0.38, 0.20), roughness=0.25, ior=1.38, k_sss=0.45,
+                                   sigma=(900.0, 500.0, 1500.0), sss_colour=(0.40, 0.55, 0.25),
+                                   layers=stack_for((0.30, 0.38, 0.20), (1200.0, 600.0, 2000.0), 250e-6, "serosa",
+                                                    25, coat_roughness=0.04, granular_weight=0.03,
+                                                    granular_roughness=0.25, vessel_density=1.0, **SEROUS)),
     # Colon mucosa: wet, glossy, pink; mu_s' ~ 1.5/mm, mu_a(620) ~ 0.05/mm [Bashkatov05] -> 0.5/mm red.
-    "colon_mucosa": OpticalMaterial(albedo=(0.62, 0.28, 0.24), roughness=0.18, ior=1.35, k_sss=0.4,
+    "colon_mucosa": OpticalMaterial(albedo=COLON_LAYERS.base_albedo, roughness=0.18, ior=1.35, k_sss=0.4,
                                     sigma=(500.0, 1800.0, 2600.0), sss_colour=(0.85, 0.3, 0.25),
                                     layers=COLON_LAYERS),
-    # Fat: weakly absorbing, strongly scattering; mu_a ~ 0.01/mm, mu_s' ~ 1.2/mm [Bashkatov05].
+    # Small bowel mucosa: like the colon's [Bashkatov05], redder and more vascular, with dense circular folds
+    # (plicae circulares, ~3-10 mm apart: 8 across a 3 cm tile) and a thicker mucus layer.
+    "small_bowel": OpticalMaterial(albedo=(0.64, 0.26, 0.22), roughness=0.2, ior=1.36, k_sss=0.4,
+                                   sigma=(550.0, 2000.0, 2800.0), sss_colour=(0.85, 0.28, 0.22),
+                                   layers=stack_for((0.64, 0.26, 0.22), (250.0, 900.0, 1300.0), 400e-6, "bowel_folds",
+                                                    27, coat_roughness=0.05, coat_ior=1.34, coat_thickness=200e-6,
+                                                    coat_absorption=(5.0, 8.0, 15.0), granular_weight=0.05,
+                                                    granular_roughness=0.35, vessel_density=1.2)),
+    # Fat: weakly absorbing, strongly scattering; mu_a ~ 0.01/mm, mu_s' ~ 1.2/mm [Bashkatov05]. Lobules
+    # ~5 mm (6 across a tile) with small vessels in the septa.
     "fat": OpticalMaterial(albedo=(0.78, 0.65, 0.38), roughness=0.45, ior=1.46, k_sss=0.5,
-                           sigma=(190.0, 260.0, 420.0), sss_colour=(0.9, 0.75, 0.45)),
-    # Fascia: collagen sheet, high scattering, little blood.
+                           sigma=(190.0, 260.0, 420.0), sss_colour=(0.9, 0.75, 0.45),
+                           layers=stack_for((0.78, 0.65, 0.38), (200.0, 300.0, 600.0), 500e-6, "fat_lobules", 29,
+                                            contrast=0.25, coat_roughness=0.1, granular_weight=0.02,
+                                            granular_roughness=0.4, vessel_density=0.8, **SEROUS)),
+    # Fascia: collagen sheet, high scattering, little blood; fibres along the sheet.
     "fascia": OpticalMaterial(albedo=(0.75, 0.68, 0.63), roughness=0.40, ior=1.41, k_sss=0.35,
-                              sigma=(300.0, 450.0, 600.0), sss_colour=(0.85, 0.7, 0.65)),
-    # Peritoneum: thin translucent serosa over perfused tissue.
+                              sigma=(300.0, 450.0, 600.0), sss_colour=(0.85, 0.7, 0.65),
+                              layers=stack_for((0.75, 0.68, 0.63), (300.0, 450.0, 600.0), 300e-6, "fibres", 31,
+                                               contrast=0.2, coat_roughness=0.1, granular_weight=0.03,
+                                               granular_roughness=0.35, vessel_density=0.4, **SEROUS)),
+    # Peritoneum: thin translucent serosa over perfused tissue, fine vessels.
     "peritoneum": OpticalMaterial(albedo=(0.62, 0.40, 0.36), roughness=0.28, ior=1.38, k_sss=0.4,
-                                  sigma=(400.0, 1200.0, 1800.0), sss_colour=(0.8, 0.4, 0.35)),
+                                  sigma=(400.0, 1200.0, 1800.0), sss_colour=(0.8, 0.4, 0.35),
+                                  layers=stack_for((0.62, 0.40, 0.36), (500.0, 1500.0, 2200.0), 300e-6, "serosa", 33,
+                                                   coat_roughness=0.05, granular_weight=0.03,
+                                                   granular_roughness=0.3, vessel_density=0.9, **SEROUS)),
+    # Vessels (large veins and arteries seen through their wall): blood absorbs strongly below 600 nm
+    # (mu_a of whole blood ~ 0.2/mm at 630 nm, > 10/mm at 550 nm [Jacques13]): dark red, longitudinal fibres.
+    "vessels": OpticalMaterial(albedo=(0.35, 0.05, 0.06), roughness=0.25, ior=1.39, k_sss=0.3,
+                               sigma=(1200.0, 6000.0, 7000.0), sss_colour=(0.6, 0.05, 0.05),
+                               layers=stack_for((0.35, 0.05, 0.06), (2000.0, 8000.0, 8000.0), 200e-6, "vessel_wall",
+                                                35, coat_roughness=0.05, granular_weight=0.03,
+                                                granular_roughness=0.25, vessel_density=0.5, **SEROUS)),
     # The plain reference: Mitsuba 3's roughplastic (GGX coat, polypropylene n = 1.49) over a grey
     # Lambertian base, no subsurface term (tissuerender.renderer.bsdf.plastic).
     "plastic": OpticalMaterial(albedo=(0.55, 0.55, 0.58), roughness=0.25, ior=1.49, k_sss=0.0,
@@ -169,26 +243,65 @@ OPTICS: dict[str, OpticalMaterial] = {
 }
 
 
-# The optical keys a scene (``[objects.optics]``) or ``tissuerender lookdev --set`` may override.
-OVERRIDABLE = ("albedo", "roughness", "ior", "k_sss", "sigma", "sss_colour")
+# The optical keys a scene (``[objects.optics]``) or ``tissuerender lookdev --set`` may override: the
+# material's own, then its layer stack's (``TissueLayers``; RGB ones as lists).
+MATERIAL_KEYS = ("albedo", "roughness", "ior", "k_sss", "sigma", "sss_colour")
+LAYER_KEYS = ("coat_roughness", "coat_ior", "coat_thickness", "coat_absorption", "granular_weight",
+              "granular_roughness", "connective_colour", "connective_thickness", "connective_absorption",
+              "submucosa_colour", "vessel_density", "bump")
+OVERRIDABLE = MATERIAL_KEYS + LAYER_KEYS
+
+
+def optical_value(optics: OpticalMaterial, key: str):
+    """The material's value of an :data:`OVERRIDABLE` key (None for a layer key of an unlayered material)."""
+    if key in LAYER_KEYS:
+        return None if optics.layers is None else getattr(optics.layers, key)
+    return optics.diffuse_albedo if key == "albedo" else getattr(optics, key)
 
 
 def with_overrides(optics: OpticalMaterial, overrides: dict) -> OpticalMaterial:
     """``optics`` with some of its :data:`OVERRIDABLE` values replaced (tuples for the RGB ones).
 
-    Raises ``ValueError`` naming the key for a value the material does not use: a layered material's
-    diffuse colour comes from its layer stack (``albedo`` would be ignored), and the ``roughplastic``
-    reference has no subsurface term (``k_sss``, ``sigma``, ``sss_colour``). Ranges are the scene
-    schema's business (``tissuerender.scene.schema.OpticsOverride``)."""
+    On a layered material ``albedo`` scales both tissue layers' colours (connective and deep) per channel so
+    that the stack's diffuse albedo becomes ``albedo`` (colours clipped at 1); the texture keeps its
+    pattern, contrast, vessels and relief, and the preset's own albedo changes nothing.
+    Raises ``ValueError`` naming the key for a value the material does not use: the ``roughplastic``
+    reference has no subsurface term (``k_sss``, ``sigma``, ``sss_colour``) and no layers. Ranges are the
+    scene schema's business (``tissuerender.scene.optics_schema``)."""
     unknown = sorted(set(overrides) - set(OVERRIDABLE))
     if unknown:
         raise ValueError(f"{unknown[0]}: not an optical key; expected one of {', '.join(OVERRIDABLE)}")
-    if optics.layers is not None and "albedo" in overrides:
-        raise ValueError("albedo: a layered (mucosa) material takes its diffuse colour from its layer stack; "
-                         "override roughness, ior or the subsurface keys instead")
     if optics.bsdf == "roughplastic":
         for key in ("k_sss", "sigma", "sss_colour"):
             if key in overrides:
                 raise ValueError(f"{key}: the plastic reference (roughplastic) has no subsurface term")
+    if optics.layers is None:
+        for key in LAYER_KEYS:
+            if key in overrides:
+                raise ValueError(f"{key}: a layer key, and this material has no layer stack (no wet coat)")
     values = {k: tuple(float(c) for c in v) if isinstance(v, (list, tuple)) else float(v) for k, v in overrides.items()}
+    layer_values = {k: values.pop(k) for k in LAYER_KEYS if k in values}
+    if optics.layers is not None and "albedo" in values:
+        # both tissue layers' colours scaled per channel by albedo / base_albedo: base_albedo is linear in
+        # them, so it becomes ``albedo`` (unless a colour clips at 1) and the preset's own value changes nothing
+        st = dataclasses.replace(optics.layers, **layer_values)
+        base = np.asarray(st.base_albedo)
+        target = np.asarray(values["albedo"])
+        scale = np.where(base > 0.0, target / np.where(base > 0.0, base, 1.0), 1.0)
+        # base_albedo's few operations round by a few ulps: a scale within 1e-12 of 1 is the preset's value
+        scale = np.where(np.abs(scale - 1.0) < 1e-12, 1.0, scale)
+        for key in ("connective_colour", "submucosa_colour"):
+            colour = np.asarray(getattr(st, key))
+            scaled = np.where(base > 0.0, colour * scale, target)
+            layer_values[key] = tuple(float(c) for c in np.minimum(scaled, 1.0))
+    if layer_values:
+        values["layers"] = dataclasses.replace(optics.layers, **layer_values)
     return dataclasses.replace(optics, **values)
+
+
+def untextured(optics: OpticalMaterial) -> OpticalMaterial:
+    """``optics`` without its baked texture (uniform ``base_albedo``, no relief, no roughness map): the layer
+    stack's BSDF alone, e.g. to check shading against closed forms."""
+    if optics.layers is None or optics.layers.texture_seed is None:
+        return optics
+    return dataclasses.replace(optics, layers=dataclasses.replace(optics.layers, texture_seed=None))

@@ -109,7 +109,9 @@ def test_nan_optics_stop_the_frame_at_shade_naming_the_pixels_the_object_covers(
     assert 0 < lump_pixel_count < np.isfinite(covered["depth"]).sum()
 
     def nan_albedo(objects):
-        objects[1].optics = dataclasses.replace(get_preset("kidney").optics, albedo=(math.nan, 0.2, 0.2))
+        optics = get_preset("kidney").optics  # layered: its diffuse colour comes from its layers
+        objects[1].optics = dataclasses.replace(optics, layers=dataclasses.replace(
+            optics.layers, connective_colour=(math.nan, 0.2, 0.2)))
 
     _on_frame_2(monkeypatch, nan_albedo)
     message = _fails_on_frame_2(scene, tmp_path / "out")

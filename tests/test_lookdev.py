@@ -32,14 +32,15 @@ def _run(tmp_path, *args, name="sheet.png"):
 
 
 def test_roughness_sweep_sharpens_the_highlight_and_keeps_the_energy(tmp_path):
-    out, report = _run(tmp_path, "liver", "--sweep", "roughness=[0.08, 0.6]")
+    out, report = _run(tmp_path, "liver", "--sweep", "coat_roughness=[0.08, 0.6]")
     sheet = np.asarray(Image.open(out))
     assert report["cell_size"] == [64, 48] and report["label_px"] == lookdev.LABEL_PX  # labels fit on one line
     assert sheet.shape == (48 + lookdev.LABEL_PX, 2 * 64, 3)
     smooth, rough = report["cells"]
-    assert [c["overrides"] for c in report["cells"]] == [{"roughness": 0.08}, {"roughness": 0.6}]
+    assert [c["overrides"] for c in report["cells"]] == [{"coat_roughness": 0.08}, {"coat_roughness": 0.6}]
     assert smooth["object_pixels"] == rough["object_pixels"] > 1000  # same sphere, same view
-    # the GGX lobe narrows: a much brighter peak, about the same reflected power over the sphere
+    # the wet coat's GGX lobe narrows (liver is layered: its highlight is the coat's): a much brighter peak,
+    # about the same reflected power over the sphere
     assert smooth["peak_luminance"] > 3.0 * rough["peak_luminance"]
     np.testing.assert_allclose(smooth["mean_linear_rgb"], rough["mean_linear_rgb"], rtol=0.02)
     # the cells differ where the highlight is, not in the label strip's layout
@@ -51,9 +52,10 @@ def test_grey_albedo_scales_the_diffuse_light(tmp_path):
     dark, light = (np.array(c["mean_linear_rgb"]) for c in report["cells"])
     # a grey Lambertian surface returns the light's colour (radiance 1 : 0.96 : 0.9)
     np.testing.assert_allclose(dark / dark[0], [1.0, 0.96, 0.90], rtol=0.01)
-    # doubling the albedo doubles the diffuse part; the specular part (F0 = 0.027) stays
+    # doubling the albedo doubles the diffuse part; the specular part stays (the wet coat's Fresnel ~0.02-0.06
+    # and the tissue lobe's F0 = 0.027 under it: about a sixth of the dark cell's light, measured 1.83)
     ratio = light / dark
-    assert np.all((ratio > 1.85) & (ratio < 2.0)), ratio
+    assert np.all((ratio > 1.75) & (ratio < 2.0)), ratio
     assert report["set"] == {"k_sss": 0}
 
 
@@ -95,8 +97,8 @@ def _with_samples(scene, samples):
 
 
 @pytest.mark.parametrize("table, key, words", [
-    ("material = \"colon_mucosa\"\n[objects.optics]\nalbedo = [0.5, 0.2, 0.2]", "objects[0].optics.albedo",
-     "layer stack"),
+    ("material = \"plastic\"\n[objects.optics]\ncoat_roughness = 0.1", "objects[0].optics.coat_roughness",
+     "no layer stack"),
     ("material = \"plastic\"\n[objects.optics]\nsigma = [1.0, 2.0, 3.0]", "objects[0].optics.sigma", "subsurface"),
     ("material = \"liver\"\n[objects.optics]\nroughness = 1.5", "objects[0].optics.roughness", "less than or equal"),
     ("material = \"liver\"\n[objects.optics]\nglossiness = 0.5", "objects[0].optics.glossiness", "unknown key"),
@@ -126,7 +128,7 @@ def test_a_bad_scene_stage_is_reported_as_the_scene_error(tmp_path, capsys):
     (["liver", "--set", "albedo=[0.5, 0.2"], "--set albedo: expected a TOML value"),
     (["liver", "--set", "albedo=[0.5, 0.2]"], "--set albedo: expected list should have at least 3 items"),
     (["liver", "--set", "roughness"], "--set: expected KEY=VALUE"),
-    (["colon_mucosa", "--set", "albedo=[0.5, 0.2, 0.2]"], "--set albedo: a layered (mucosa) material"),
+    (["plastic", "--set", "coat_ior=1.3"], "--set coat_ior: a layer key"),
     (["plastic", "--sweep", "k_sss=[0, 0.5]"], "--sweep k_sss: the plastic reference"),
     (["liver", "--sweep", "roughness=0.3"], "--sweep roughness: expected a non-empty TOML list"),
     (["liver", "--set", "ior=1.4", "--sweep", "ior=[1.3, 1.5]"], "--sweep ior: the key is already set or swept"),
@@ -135,7 +137,7 @@ def test_a_bad_scene_stage_is_reported_as_the_scene_error(tmp_path, capsys):
      "at most 64 cells, found 8 x 9 = 72"),
     (["liver", "fat", "--sweep", "ior=[1.3]", "--sweep", "k_sss=[0]"], "at most 1 (columns; the materials are the rows)"),
     (["liver", "liver"], "material: each material once"),
-    (["liver", "colon_mucosa", "--set", "albedo=[0.5, 0.2, 0.2]"], "--set albedo: a layered (mucosa) material"),
+    (["liver", "plastic", "--set", "granular_weight=0.5"], "--set granular_weight: a layer key"),
     (["liver", "fat", "--scene", str(ROOT / "scenes" / "default.toml")], "no object is made of 'fat'"),
     (["kidney", "--scene", str(ROOT / "scenes" / "default.toml")], "no object is made of 'kidney'"),
     (["liver", "--resolution", "10x"], "--resolution: expected WxH"),

@@ -194,7 +194,8 @@ UNUSED = [
     (lambda d, t: _chain(d, sss_thickness="pixel"), "effects.sss_thickness", "effects.sss"),
     (lambda d, t: _chain(d, ao_samples=4), "effects.ao_samples", "effects.ao"),
     (lambda d, t: _chain(d, environment_axis=[0.0, 1.0, 0.0]), "effects.environment_axis", "mucus_reflection"),
-    (lambda d, t: _chain(d, mucus_reflection=True, environment_up=[1.0, 1.0, 1.0]), "effects.mucus_reflection",
+    (lambda d, t: ([o.update(material="plastic") for o in d["objects"]],  # every tissue preset has a wet coat
+                   _chain(d, mucus_reflection=True, environment_up=[1.0, 1.0, 1.0])), "effects.mucus_reflection",
      "layered material"),
     (lambda d, t: (d["effects"].pop("tonemap"), _chain(d, backend="numpy")), "effects.backend", "has none"),
     (lambda d, t: d["output"].update(jitter=False), "output.jitter", "supersampling = 1"),

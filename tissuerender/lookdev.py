@@ -26,7 +26,7 @@ from PIL import Image, ImageDraw, ImageFont
 from pydantic import ValidationError
 
 import materials
-from materials.optics import OVERRIDABLE, with_overrides
+from materials.optics import OVERRIDABLE, optical_value, with_overrides
 from tissuerender.errors import UserError
 from tissuerender.files import output_folder, write_json, write_png
 from tissuerender.pipeline import render_frame_arrays
@@ -353,7 +353,9 @@ def _cmd_lookdev(args) -> int:
     sheet, strip = contact_sheet(images, [c.label for c in cells], rows, cols)
     report = {"materials": args.material, "stage": args.scene or args.shape, "rows": rows, "columns": cols,
               "cell_size": [int(images[0].shape[1]), int(images[0].shape[0])], "label_px": strip,
-              "preset_optics": {m: {k: getattr(materials.get_preset(m).optics, k) for k in OVERRIDABLE} for m in args.material},
+              "preset_optics": {m: {k: optical_value(materials.get_preset(m).optics, k) for k in OVERRIDABLE
+                                    if optical_value(materials.get_preset(m).optics, k) is not None}
+                                for m in args.material},
               "set": fixed, "cells": stats}
     side = _write_outputs(out, sheet, report)
     if not args.quiet:
@@ -380,7 +382,8 @@ def add_cli(subparsers) -> None:
     p.add_argument("--scene", help="use this scene as the stage: every object made of MATERIAL gets the values")
     p.add_argument("--frame", type=int, default=1, help="with --scene: the frame to render (default 1)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="an optical value for every cell, as TOML (roughness=0.3, albedo=[0.5,0.1,0.1]); repeatable")
+                   help="an optical or layer value for every cell, as TOML (roughness=0.3, albedo=[0.5,0.1,0.1], "
+                        "coat_roughness=0.05, granular_weight=0.1); repeatable")
     p.add_argument("--sweep", action="append", metavar="KEY=[V1,V2,...]",
                    help="values of one key, one per column (a second --sweep, with one material: rows); a TOML list")
     p.add_argument("--resolution", metavar="WxH", help="size of one cell (default: the stage's, 240x180)")

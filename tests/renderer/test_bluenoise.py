@@ -4,8 +4,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from materials import get_preset
+from materials.optics import untextured
 from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame
 from tissuerender.renderer import bluenoise
+
+UNTEXTURED_LIVER = untextured(get_preset("liver").optics)  # the BSDF alone: noise, not texture
 
 
 def _low_frequency_share(x):
@@ -35,10 +39,10 @@ def test_tile_has_almost_no_low_frequency_power():
 def _penumbra_scene():
     p = np.array([[-0.2, -0.2, 0.0], [0.2, -0.2, 0.0], [0.2, 0.2, 0.0], [-0.2, 0.2, 0.0]])
     floor = RenderObject(points=p, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=np.tile([0.0, 0, 1], (4, 1)),
-                         uv=None, material="liver")
+                         uv=None, material="liver", optics=UNTEXTURED_LIVER)
     q = np.array([[-0.03, -0.03, 0.1], [0.03, -0.03, 0.1], [0.03, 0.03, 0.1], [-0.03, 0.03, 0.1]])
     blocker = RenderObject(points=q, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=np.tile([0.0, 0, 1], (4, 1)),
-                           uv=None, material="liver")
+                           uv=None, material="liver", optics=UNTEXTURED_LIVER)
     cam = Camera((0.0, 0.0, 0.5), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 30.0, 0.01, 5.0, 64, 64)
     return [floor, blocker], cam
 

@@ -20,11 +20,13 @@ def _dirs(theta_o, k):
 
 
 def _stack(k, layers: MucosaLayers, n, wo, wi, albedo=1.0, f0=0.027, alpha=0.3):
-    base = reflectance_cos(n, wo, wi, np.full((k, 3), albedo), np.full(k, alpha), np.full(k, f0))
-    full = layered_reflectance_cos(n, wo, wi, base, np.full(k, layers.coat_roughness), np.full(k, layers.coat_ior),
-                                   np.full(k, layers.coat_thickness), np.tile(layers.coat_absorption, (k, 1)),
-                                   np.full(k, layers.granular_weight), np.full(k, layers.granular_roughness))
-    return base, full
+    """(the tissue lobes alone: a neutral coat and no granular lobe, the full stack)."""
+    def stack(st):
+        return layered_reflectance_cos(n, wo, wi, np.full((k, 3), albedo), np.full(k, alpha), np.full(k, f0), None,
+                                       st.coat_roughness, st.coat_ior, st.coat_thickness,
+                                       np.tile(st.coat_absorption, (k, 1)), np.full(k, st.granular_weight),
+                                       np.full(k, st.granular_roughness))
+    return stack(MucosaLayers(coat_ior=1.0, coat_thickness=0.0, granular_weight=0.0)), stack(layers)
 
 
 def _cosine_hemisphere(k, seed=0):
@@ -61,12 +63,16 @@ def test_white_furnace_stack_reflects_at_most_what_arrives(theta_deg, coat_rough
     assert albedo <= 1.0 + 0.01  # Monte Carlo tolerance
 
 
-def test_neutral_stack_is_exactly_the_base():
+def test_neutral_coat_leaves_the_tissue_specular_lobe_exactly():
+    """ior 1 (F = 0, so the coat's albedo table is exactly 0), zero thickness, no granular lobe: the stack's
+    specular part is the tissue's Cook-Torrance lobe itself (factors of exactly 1); with albedo 0 nothing else."""
     k = 1000
     n, wo = _dirs(0.4, k)
     wi = _cosine_hemisphere(k, 1)
-    base, full = _stack(k, MucosaLayers(coat_ior=1.0, coat_thickness=0.0, granular_weight=0.0), n, wo, wi)
-    assert np.array_equal(full, base)  # F = 0 and zero thickness: factors of exactly 1 and terms of exactly 0
+    _, full = _stack(k, MucosaLayers(coat_ior=1.0, coat_thickness=0.0, granular_weight=0.0), n, wo, wi, albedo=0.0)
+    f0 = np.full(k, 0.027)
+    lobe = reflectance_cos(n, wo, wi, np.zeros((k, 3)), np.full(k, 0.3), f0)  # albedo 0: the GGX lobe alone
+    np.testing.assert_allclose(full, lobe, rtol=1e-12, atol=0.0)
 
 
 def test_wet_coat_adds_a_sharp_mirror_highlight():
@@ -162,9 +168,9 @@ def test_layer_channels_exist_only_with_a_layered_material_and_hold_its_values()
                             material=material)
         return render_frame([slab], cam, AreaLight(samples=1), RenderSettings()).gbuffer
 
-    liver = render("liver")
-    assert "layer_albedo" not in liver and "mucus_weight" not in liver
-    assert liver["specular"] == pytest.approx(get_preset("liver").optics.f0)
+    plain = render("plastic")
+    assert "layer_albedo" not in plain and "mucus_weight" not in plain
+    assert plain["specular"] == pytest.approx(get_preset("plastic").optics.f0)
     colon = render("colon_mucosa")
     layers = get_preset("colon_mucosa").optics.layers
     assert np.allclose(colon["layer_albedo"][:, 0], layers.connective_colour)

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from materials import get_preset
+from materials.optics import untextured
 from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame
 from tissuerender.renderer.bsdf.tissue import reflectance_cos
 from tissuerender.renderer.bvh import BVH
@@ -218,6 +219,8 @@ def test_vertex_thickness_follows_a_wedge_like_the_per_pixel_rays():
     interpolated vertex thickness equals the per-pixel rays' up to rounding."""
     top = _grid_quad(0.0, 0.2, "liver")
     bottom = _grid_quad(0.0, 0.21, "liver")
+    # without the liver's relief (its normal map bends the per-pixel rays, not the vertex normals)
+    top.optics = bottom.optics = untextured(get_preset("liver").optics)
     bottom.points = bottom.points.copy()
     bottom.points[:, 2] = -0.001 - 0.01 * (bottom.points[:, 0] + 0.21)  # 1 mm ... 5.2 mm
     bottom.triangles = bottom.triangles[:, ::-1].copy()
@@ -255,7 +258,8 @@ def test_ambient_occlusion_is_one_in_the_open_and_one_half_in_a_corner():
 
 def test_ambient_light_on_a_lambertian_floor_is_albedo_times_radiance(tmp_path):
     pts, tris = _ao_scene()
-    floor = RenderObject(points=pts[:4], triangles=tris[:2], normals=None, uv=None, material="liver")
+    floor = RenderObject(points=pts[:4], triangles=tris[:2], normals=None, uv=None, material="liver",
+                         optics=untextured(get_preset("liver").optics))  # uniform albedo
     cam = Camera(position=(0.1, 0.0, 0.3), look_at=(0.1, 0.0, 0.0), up=(0.0, 1.0, 0.0), fov_deg=30.0,
                  near=0.01, far=1.0, width=16, height=16)
     light = AreaLight(radiance=(0.0, 0.0, 0.0), samples=1)

@@ -11,7 +11,7 @@ import numpy as np
 
 import materials
 from materials.textures import sample_bilinear
-from sim.mesh.surface import vertex_normals
+from sim.mesh.surface import box_uv, vertex_normals
 from tissuerender.renderer.bsdf.mucosa import layer_arrays, layer_channels
 from tissuerender.renderer.camera import Camera, camera_basis
 from tissuerender.renderer.raster import interpolate_gbuffer, material_lookup, rasterize_objects
@@ -84,7 +84,8 @@ def merge_objects(objects) -> RenderSurface:
         tris.append(t + offset)
         nrm.append(np.asarray(n, float))
         vel.append(np.zeros_like(p) if obj.velocity is None else np.asarray(obj.velocity, float))
-        uvs.append(np.zeros((p.shape[0], 2)) if obj.uv is None else np.asarray(obj.uv, float).reshape(-1, 2))
+        # without UVs, the box projection in metres of procedural bodies (a texture keeps its physical size)
+        uvs.append(box_uv(p, np.asarray(n, float)) if obj.uv is None else np.asarray(obj.uv, float).reshape(-1, 2))
         tri_mat.append(np.full(t.shape[0], k, np.int64))
         offset += p.shape[0]
     if not pts:

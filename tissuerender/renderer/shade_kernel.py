@@ -277,17 +277,44 @@ def _table(t, row, mu):
     return t[row, k] * (1.0 - f) + t[row, k + 1] * f
 
 
+@njit(cache=True, inline="always")
+def _table2(t, plane, alpha, mu):
+    """Bilinear interpolation in plane ``plane`` of a (2, alphas, cosines) table (bsdf.albedo.lookup_alpha_mu)."""
+    na, nm = t.shape[1], t.shape[2]
+    xa = min(max(alpha, 0.0), 1.0) * (na - 1)
+    ka = min(int(xa), na - 2)
+    fa = xa - ka
+    xm = min(max(mu, 0.0), 1.0) * (nm - 1)
+    km = min(int(xm), nm - 2)
+    fm = xm - km
+    lo = t[plane, ka, km] * (1.0 - fm) + t[plane, ka, km + 1] * fm
+    hi = t[plane, ka + 1, km] * (1.0 - fm) + t[plane, ka + 1, km + 1] * fm
+    return lo * (1.0 - fa) + hi * fa
+
+
+@njit(cache=True, inline="always")
+def _table1(t, plane, alpha):
+    """Linear interpolation in row ``plane`` of a (2, alphas) table (bsdf.albedo.lookup_alpha)."""
+    na = t.shape[1]
+    xa = min(max(alpha, 0.0), 1.0) * (na - 1)
+    ka = min(int(xa), na - 2)
+    fa = xa - ka
+    return t[plane, ka] * (1.0 - fa) + t[plane, ka + 1] * fa
+
+
 @njit(cache=True, parallel=True)
 def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_scale, m, rotation, stride, phase,
                  centre, ln, eu, ev, eps, shadows, ray_offsets, occluded, kind, f0, k_sss, sigma, sss_colour, coat,
-                 coat_sigma, plastic, plastic_t, ratio, unshadowed, out):
+                 coat_sigma, coat_E, coat_norm, schlick_E, plastic, plastic_t, ratio, unshadowed, out):
     """Direct light of the area light at every point, into ``out`` (k, 3) (without the light's radiance).
 
     Per point: ``albedo`` (k, 3) and ``alpha`` (textured where the material has a bake), material id
     ``mat``, SSS ``thickness`` (used when ``has_sss``), ``granular_scale`` (the roughness map's factor
     on the granular layer), ``m`` light samples with their rotation and stride/phase. Per material:
     ``kind`` (tissue / layered / plastic), ``f0``, ``k_sss``, ``sigma`` (3), ``sss_colour`` (3), ``coat``
-    (coat alpha, coat ior, coat thickness, granular weight, granular alpha), ``coat_sigma`` (3),
+    (coat alpha, coat ior, coat thickness, granular weight, granular alpha), ``coat_sigma`` (3), ``coat_E``
+    the coat lobe's albedo table, ``coat_norm`` (3, alphas) the normalisations of the lobes under it and
+    ``schlick_E`` (2, alphas, cosines) the tissue lobe's Schlick split albedo tables (``bsdf.albedo``),
     ``plastic`` (eta, 1 / (1 - F_dr), row in ``plastic_t``) and ``plastic_t`` the coating transmittance
     tables. With ``shadows``, sample s of point i that can contribute is visible unless ray
     ``ray_offsets[i] + s`` is ``occluded``.
@@ -328,6 +355,18 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
             row = int(plastic[mt, 2])
             t_view = _table(plastic_t, row, n_v)
             base = plastic[mt, 1] * t_view / (np.pi * eta * eta)
+        ca, ior, ga, wg, c_o, ds_o, ms_o = 1e-3, 1.0, 1e-3, 0.0, 1.0, 0.0, 0.0
+        if kd == KIND_LAYERED:
+            ca = max(coat[mt, 0], 1e-3)
+            ior = coat[mt, 1]
+            ga = max(coat[mt, 4] * granular_scale[i], 1e-3)
+            wg = coat[mt, 3]
+            c_o = 1.0 - _table(coat_E, mt, n_v)
+            # X(mu_o) / N of the diffuse lobe under the tissue lobe (F0 = fr) and, over pi, of the granular one
+            Es_o = fr * _table2(schlick_E, 0, a, n_v) + _table2(schlick_E, 1, a, n_v)
+            ds_o = c_o * (1.0 - Es_o) / (_table1(coat_norm[mt], 0, a) - fr * _table1(coat_norm[mt], 1, a))
+            g_o = _table2(schlick_E, 0, ga, n_v) + _table2(schlick_E, 1, ga, n_v)
+            ms_o = c_o * (1.0 - g_o) / max(np.pi * _table1(coat_norm[mt], 2, ga), 1e-12)
         mi = m[i]
         r = ray_offsets[i]
         acc_r = 0.0  # specular (and everything not diffuse): plain Monte Carlo
@@ -378,26 +417,31 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
                 spec = _ggx_D(n_h, a) * _smith_vis(n_v, n_l, a) * F * n_l
                 trans = (28.0 / 23.0) * (1.0 - fr) * (1.0 - (1.0 - 0.5 * n_l) ** 5) * t_v * n_l
                 if kd == KIND_LAYERED:
-                    ca = max(coat[mt, 0], 1e-3)
-                    ior = coat[mt, 1]
-                    ga = max(coat[mt, 4] * granular_scale[i], 1e-3)
-                    wg = coat[mt, 3]
+                    # the wet stack (bsdf.mucosa): coat lobe, T_s over the specular lobes, the diffuse lobes
+                    # scaled by what the coat and the lobe above them leave, X(mu_i) X(mu_o) / N
                     spec_coat = _ggx_D(n_h, ca) * _smith_vis(n_v, n_l, ca) * _dielectric_F(v_h, ior) * n_l
-                    spec_gran = _ggx_D(n_h, ga) * _smith_vis(n_v, n_l, ga) * n_l
-                    tt = (1.0 - _dielectric_F(n_l, ior)) * (1.0 - _dielectric_F(n_v, ior))
+                    c_i = 1.0 - _table(coat_E, mt, n_l)
+                    T_s = min(c_i, c_o)
                     path = coat[mt, 2] * (1.0 / max(_refracted_cos(n_l, ior), 1e-3)
                                           + 1.0 / max(_refracted_cos(n_v, ior), 1e-3))
-                    under = wg * spec_gran + (1.0 - wg) * spec
-                    t0 = tt * np.exp(-coat_sigma[mt, 0] * path) * weight
-                    t1 = tt * np.exp(-coat_sigma[mt, 1] * path) * weight
-                    t2 = tt * np.exp(-coat_sigma[mt, 2] * path) * weight
+                    f_s = _ggx_D(n_h, a) * _smith_vis(n_v, n_l, a) * F * n_l
+                    f_g = _ggx_D(n_h, ga) * _smith_vis(n_v, n_l, ga) * n_l
+                    s_A = _table2(schlick_E, 0, a, n_l)
+                    s_B = _table2(schlick_E, 1, a, n_l)
+                    Es_i = fr * s_A + s_B
+                    g_i = _table2(schlick_E, 0, ga, n_l) + _table2(schlick_E, 1, ga, n_l)
+                    f_ms = c_i * (1.0 - g_i) * ms_o * n_l
+                    sdiff = c_i * (1.0 - Es_i) * ds_o * n_l
+                    under = T_s * ((1.0 - wg) * f_s + wg * f_g)
+                    t0 = np.exp(-coat_sigma[mt, 0] * path) * weight
+                    t1 = np.exp(-coat_sigma[mt, 1] * path) * weight
+                    t2 = np.exp(-coat_sigma[mt, 2] * path) * weight
                     acc_r += spec_coat * weight + t0 * under
                     acc_g += spec_coat * weight + t1 * under
                     acc_b += spec_coat * weight + t2 * under
-                    trans *= 1.0 - wg
-                    dif_r += t0 * dr * trans
-                    dif_g += t1 * dg * trans
-                    dif_b += t2 * db * trans
+                    dif_r += t0 * ((1.0 - wg) * dr * sdiff + wg * f_ms)
+                    dif_g += t1 * ((1.0 - wg) * dg * sdiff + wg * f_ms)
+                    dif_b += t2 * ((1.0 - wg) * db * sdiff + wg * f_ms)
                 else:
                     acc_r += spec * weight
                     acc_g += spec * weight

@@ -22,6 +22,7 @@ from sim.integrators.xpbd.settings import XPBDSceneSettings
 
 from tissuerender.scene.camera_schema import CameraKeyframe, CameraLens, check_path, degenerate_view
 from tissuerender.scene.bc_schema import HeldComponents
+from tissuerender.scene.optics_schema import LayerOverride
 from tissuerender.scene.shapes import SHAPES
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -110,14 +111,14 @@ Unit = Annotated[float, Field(ge=0.0, le=1.0)]
 UnitRGB = Annotated[list[Unit], Field(min_length=3, max_length=3)]
 
 
-class OpticsOverride(Strict):
+class OpticsOverride(LayerOverride):
     """Replaces values of the preset's optics (``materials.optics.OpticalMaterial``) for one object; what
     ``tissuerender lookdev`` prints for a look to keep."""
 
     albedo: UnitRGB | None = Field(None, description=(
-        "diffuse albedo (linear RGB); not for a layered material (colon_mucosa: its colour comes from its layers)"))
+        "diffuse albedo (linear RGB); on a layered material both tissue layers' colours are scaled to give it"))
     roughness: Annotated[float, Field(ge=1e-3, le=1.0)] | None = Field(None, description=(
-        "GGX alpha of the tissue's specular lobe (a layered material's mucus coat keeps its own)"))
+        "GGX alpha of the tissue's specular lobe (under a layered material's wet coat, which keeps its own)"))
     ior: Annotated[float, Field(ge=1.0, le=3.0)] | None = Field(None, description=(
         "index of refraction (Fresnel F0 = ((n - 1)/(n + 1))^2)"))
     k_sss: Unit | None = Field(None, description="subsurface weight (Qian eq. 6.5); not for plastic")
@@ -137,7 +138,8 @@ class ObjectSpec(Strict):
     kind: Literal["body", "surface"] = Field("body", description=(
         "a simulated tet-mesh body, or a static surface (a triangle mesh that is only rendered)"))
     material: str = Field(description=(
-        "material preset (materials/): liver, kidney, colon_mucosa, fat, fascia, peritoneum, plastic; mechanics "
+        "material preset (materials/): liver, kidney, gallbladder, colon_mucosa, small_bowel, fat, fascia, peritoneum, "
+        "vessels, plastic; mechanics "
         "and optics together"))
     shape: Literal[SHAPES] | None = Field(None, description=(  # type: ignore[valid-type]
         "procedural body (a body has exactly one of shape or mesh)"))

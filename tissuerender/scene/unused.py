@@ -168,7 +168,7 @@ def _effects(scene):
             return f"effects.{name}", f"only effects.{switch} uses it, and that is off: set {switch} = true or remove it"
     if eff.mucus_reflection and not any(materials.get_preset(o.material).optics.layers is not None
                                         for o in scene.objects):
-        return "effects.mucus_reflection", ("only a layered material (colon_mucosa) has a mucus coat, and no object "
+        return "effects.mucus_reflection", ("only a layered material (every tissue preset, not plastic) has a wet coat, and no object "
                                             "is made of one: the reflection has no effect")
     if "backend" in given and not scene.effect_chain():
         return "effects.backend", "chooses how the post-effects run, but the scene has none; remove it"

@@ -13,9 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from tissuerender.renderer.bsdf.albedo import ALPHA_SIZE, MU_SIZE, schlick_tables
 from tissuerender.renderer.bsdf.mucosa import LayeredMucosa
 from tissuerender.renderer.bsdf.plastic import RoughPlastic
 from tissuerender.renderer.bsdf.tissue import Tissue
+from tissuerender.renderer.shade_kernel import KIND_LAYERED
 
 BSDFS = {cls.name: cls for cls in (Tissue, LayeredMucosa, RoughPlastic)}
 
@@ -49,7 +51,7 @@ def kernel_tables(bsdfs, optics):
     G-buffer's material id."""
     k = max(len(optics), 1)
     tables = dict(kind=np.zeros(k, np.int64), coat=np.zeros((k, 5)), coat_sigma=np.zeros((k, 3)),
-                  plastic=np.zeros((k, 3)), plastic_t=[np.ones(64)])
+                  coat_E=np.zeros((k, MU_SIZE)), coat_norm=np.ones((k, 3, ALPHA_SIZE)), plastic=np.zeros((k, 3)), plastic_t=[np.ones(64)])
     for mid, bsdf in enumerate(bsdfs):
         tables["kind"][mid] = bsdf.kind
         bsdf.kernel_row(mid, tables)
@@ -63,5 +65,7 @@ def kernel_tables(bsdfs, optics):
         return out
 
     tables["plastic_t"] = np.ascontiguousarray(np.stack(tables["plastic_t"]))
-    return dict(tables, f0=column("f0"), k_sss=column("k_sss"), sigma=column("sigma", 3),
+    # the tissue lobe's albedo tables, needed (and computed, once per process) only under a wet coat
+    E = schlick_tables()[0] if any(b.kind == KIND_LAYERED for b in bsdfs) else np.zeros((2, 2, 2))
+    return dict(tables, schlick_E=E, f0=column("f0"), k_sss=column("k_sss"), sigma=column("sigma", 3),
                 sss_colour=column("sss_colour", 3))
