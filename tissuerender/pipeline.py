@@ -57,7 +57,7 @@ def render_hdr(world: World, scene: Scene, plan: Plan, recorder: StageRecorder, 
         result.passes = groundtruth.ground_truth(objects, groundtruth.rest_positions(world, objects), view, wanted,
                                                  recorder)
         if any(name in groundtruth.MOTION_PASSES for name in wanted):
-            result.geometry = groundtruth.frame_geometry(objects, camera)  # for the motion passes (write_geometry)
+            result.geometry = groundtruth.frame_geometry(objects, camera, None if lens is None else lens.k)  # write_geometry
     if lens is not None:
         with recorder.run("lens"):  # colour bilinear (then vignetting, before the post-effects), passes nearest
             lens.apply(result)

@@ -5,7 +5,7 @@ Query points are ``n`` pixel centres drawn without replacement (``numpy.random.d
 scene seed) from the pixels of frame 1 that see a simulated body, in the raster of ``motion.carry`` (pixel
 centres, as every pass). Each query's material point is the point that pixel sees; in frame ``k`` it is
 ``X_k = sum_i b_i P_k,i`` over the same triangle (``motion`` module docstring, step 1), projected through
-``motion._project``; it is occluded in frame ``k`` by ``motion.occluded_in`` (the flow's occlusion test).
+``motion._project`` (through the lens, if any: distorted pixels); it is occluded in frame ``k`` by ``motion.occluded_in`` (the flow's occlusion test).
 
 Files (``write_tracks``), in the output folder:
 
@@ -18,7 +18,9 @@ Files (``write_tracks``), in the output folder:
   video is the written ``frame_NNNN.png`` frames (black where PNGs are not written).
 - ``tracks_tapvid3d.npz``: the TAPVid-3D layout, ``tracks_XYZ`` (T, N, 3) float32 in each frame's OpenCV camera
   coordinates [m], ``visibility`` (T, N) bool, ``fx_fy_cx_cy`` (4,) float64 of ``K``, ``queries_xyt`` (N, 3)
-  float32 ``[x, y, t]``; no ``images_jpeg_bytes`` (the frames are the PNGs).
+  float32 ``[x, y, t]``; no ``images_jpeg_bytes`` (the frames are the PNGs). Through ``[camera.lens]`` the 2D
+  points are distorted pixels, ``fx_fy_cx_cy`` is the distorted camera's ``K`` and the file adds
+  ``fisheye_k1_k4`` (4,) float64 and a ``lens_note`` string saying that the lens applies.
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ from PIL import Image
 
 from tissuerender.files import write_atomic
 from tissuerender.groundtruth.cameras import intrinsics, world_to_camera
-from tissuerender.groundtruth.motion import Geometry, _project, carry, occluded_in, visible_surface
+from tissuerender.groundtruth.motion import Geometry, _project, carry, lens_of, occluded_in, visible_surface
 
 CHUNK = 8  # frames carried per re-raster of frame 1 (each adds 3 float64 attributes per vertex)
 
@@ -62,7 +64,7 @@ def compute_tracks(geometries: list[Geometry], body_objects, n: int, seed: int) 
         for j, geom in enumerate(chunk):
             X = carried.targets[j][chosen]
             points_3d[:, start + j] = X
-            points_2d[:, start + j] = _project(X, geom.camera)[0]
+            points_2d[:, start + j] = _project(X, geom.camera, lens_of(geom.camera, geom.lens_k))[0]
             occluded[:, start + j] = occluded_in(X, carried.corners[j][chosen], visible_surface(geom), geom.camera)
     query = np.concatenate([np.zeros((count, 1)), pixels.astype(float)], axis=1)
     return {"query_points": query.astype(np.float32), "points_2d": points_2d.astype(np.float32),
@@ -103,11 +105,15 @@ def write_tracks(out: Path, tracks: dict, geometries: list[Geometry], name: str)
     written.append(_write_bytes(out / "tracks_tapvid.pkl", pickle.dumps(tapvid, protocol=4)))
     xyz = np.stack([tracks["points_3d"][:, k].astype(float) @ world_to_camera(g.camera)[:3, :3].T
                     + world_to_camera(g.camera)[:3, 3] for k, g in enumerate(geometries)])
-    K = intrinsics(camera)
+    lens = lens_of(camera, geometries[0].lens_k)
+    K = intrinsics(camera) if lens is None else lens.K
     q = tracks["query_points"]
+    extra = {} if lens is None else {"fisheye_k1_k4": np.asarray(lens.k, float),
+                                     "lens_note": np.array("fx_fy_cx_cy are the Kannala-Brandt (OpenCV fisheye) "
+                                                           "camera's: project through fisheye_k1_k4 as well")}
     buffer = io.BytesIO()
     np.savez_compressed(buffer, tracks_XYZ=xyz.astype(np.float32).reshape(len(geometries), -1, 3),
                         visibility=~tracks["occluded"].T, fx_fy_cx_cy=np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]),
-                        queries_xyt=np.stack([q[:, 2], q[:, 1], q[:, 0]], axis=1).astype(np.float32))
+                        queries_xyt=np.stack([q[:, 2], q[:, 1], q[:, 0]], axis=1).astype(np.float32), **extra)
     written.append(_write_bytes(out / "tracks_tapvid3d.npz", buffer.getvalue()))
     return written

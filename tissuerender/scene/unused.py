@@ -179,10 +179,6 @@ def _output(scene):
     out = scene.output
     if "jitter" in _set(out) and out.supersampling == 1:
         return "output.jitter", "jitters the supersamples within a pixel, but supersampling = 1; remove it"
-    motion = [name for name in ("flow", "scene_flow", "tracks") if name in out.passes]
-    if motion and getattr(scene.camera, "lens", None) is not None:
-        return "output.passes", (f"{motion[0]} through camera.lens is not implemented yet (the motion passes are "
-                                 "exact for a pinhole only): remove camera.lens or the motion passes")
     if "track_points" in _set(out) and "tracks" not in out.passes:
         return "output.track_points", "sets the number of tracked points, but passes does not list tracks; remove it"
     if "mp4" in out.formats and "png" not in out.formats:
