@@ -13,8 +13,11 @@ import json
 
 import numpy as np
 import pytest
+import tomli_w
 
 from tests.test_groundtruth_motion import PROBE, STRETCH, TISSUE, TOOL, _pass, _render, _warp_violations
+from tissuerender import load_scene, make_plan
+from tissuerender.errors import SceneError
 from tissuerender.groundtruth.lens import FisheyeLens, fisheye_lens
 from tissuerender.renderer.camera import Camera
 
@@ -89,3 +92,33 @@ def test_occlusion_through_the_lens_flags_exactly_the_tissue_the_probe_covers(pr
         covered = tissue & (nxt == TOOL)
         assert covered.sum() > 20
         np.testing.assert_array_equal(_pass(probe_lens, "occluded_forward", k)[tissue], covered[tissue])
+
+
+def test_a_query_given_in_the_scene_starts_at_its_pixel_and_follows_the_flow(tmp_path_factory):
+    scene = copy.deepcopy(STRETCH)
+    del scene["output"]["track_points"]
+    scene["output"]["track_queries"] = [[0, 10, 20], [1, 30, 40], [2, 5, 60]]
+    out = _render(tmp_path_factory, scene, "queries")
+    with np.load(out / "tracks.npz") as tracks:
+        query, points_2d = tracks["query_points"], tracks["points_2d"]
+    np.testing.assert_array_equal(query, np.float32(scene["output"]["track_queries"]))
+    for i, (t, y, x) in enumerate(scene["output"]["track_queries"]):
+        # a pinhole: the query pixel's point projects onto its centre (float64 rounding of the projection)
+        np.testing.assert_allclose(points_2d[i, t], [x, y], atol=1e-4)
+    # from the query's frame on, the track moves with the forward flow at its pixel (float32 flows and points)
+    np.testing.assert_allclose(points_2d[1, 2] - points_2d[1, 1], _pass(out, "flow_forward", 2)[30, 40], atol=1e-4)
+    np.testing.assert_allclose(points_2d[0, 1] - points_2d[0, 0], _pass(out, "flow_forward", 1)[10, 20], atol=1e-4)
+    assert np.abs(points_2d[0, 1] - points_2d[0, 0]).max() > 0.1  # it moves
+
+
+@pytest.mark.parametrize("output, key", [({"passes": ["depth"], "track_queries": [[0, 1, 1]]}, "output.track_queries"),
+                                         ({"track_queries": [[3, 1, 1]]}, r"output.track_queries\[0\]"),
+                                         ({"track_queries": [[0, 48, 1]]}, r"output.track_queries\[0\]")])
+def test_track_queries_without_tracks_or_outside_the_sequence_are_refused(tmp_path, output, key):
+    scene = copy.deepcopy(STRETCH)
+    del scene["output"]["track_points"]
+    scene["output"].update(output)
+    path = tmp_path / "scene.toml"
+    path.write_text(tomli_w.dumps(scene))
+    with pytest.raises(SceneError, match=key):
+        make_plan(load_scene(path))
