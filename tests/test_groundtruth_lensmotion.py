@@ -4,7 +4,8 @@ and tracks" and "Lens"): every 2D motion value in the distorted image's pixels.
 The scenes are ``test_groundtruth_motion``'s ``STRETCH`` (the textured slab whose colour travels with the
 tissue) and ``PROBE`` (a sphere sweeping over static tissue), each seen through a Kannala-Brandt lens with
 ``k1 = -1`` for ``STRETCH`` (-0.3 for ``PROBE``'s wider field; about 7 % barrel compression at the image's edge, some pixels of displacement: enough that a
-pinhole projection misses by far more than the tolerances below).
+pinhole projection misses by far more than the tolerances below). Also: query points given in the scene
+(``[output] track_queries``) and the scope mask as a segmentation class.
 """
 from __future__ import annotations
 
@@ -14,6 +15,9 @@ import json
 import numpy as np
 import pytest
 import tomli_w
+from PIL import Image
+
+from postfx.laparoscope_mask import LaparoscopeMask, laparoscope_mask
 
 from tests.test_groundtruth_motion import PROBE, STRETCH, TISSUE, TOOL, _pass, _render, _warp_violations
 from tissuerender import load_scene, make_plan
@@ -122,3 +126,24 @@ def test_track_queries_without_tracks_or_outside_the_sequence_are_refused(tmp_pa
     path.write_text(tomli_w.dumps(scene))
     with pytest.raises(SceneError, match=key):
         make_plan(load_scene(path))
+
+
+def test_the_pixels_the_laparoscope_mask_blacks_out_are_the_scope_mask_class(tmp_path_factory):
+    scene = copy.deepcopy(PROBE)
+    mask = {"radius": 1.0, "softness": 0.1, "vignette": 0.3, "offset": [0.05, 0.0]}
+    scene["effects"]["laparoscope_mask"] = mask
+    scene["output"].update({"frames": 1, "formats": ["png"], "passes": ["depth", "normal", "segmentation"]})
+    del scene["output"]["track_points"]
+    out = _render(tmp_path_factory, scene, "scope")
+    instances = json.loads((out / "labels.json").read_text())["instances"]
+    assert instances[-1] == {"id": 3, "name": "scope_mask", "kind": "scope_mask", "class": "scope_mask"}
+    seg = _pass(out, "segmentation", 1)
+    # exactly the pixels the effect itself zeroes, run on a white image
+    zeroed = (laparoscope_mask(np.ones((48, 64, 3), np.float32), LaparoscopeMask(**mask)) == 0.0).all(axis=2)
+    assert 0.2 * 48 * 64 < zeroed.sum() < 0.6 * 48 * 64
+    np.testing.assert_array_equal(seg == 3, zeroed)
+    with Image.open(out / "frame_0001.png") as im:
+        assert (np.asarray(im)[zeroed] == 0).all()
+    # behind the mask the raster saw tissue or the probe (depth kept): the class replaces what was seen
+    assert np.isfinite(_pass(out, "depth", 1)[zeroed]).sum() > 50
+    assert {1, 2} <= set(np.unique(seg[~zeroed]).tolist())

@@ -61,6 +61,8 @@ def render_hdr(world: World, scene: Scene, plan: Plan, recorder: StageRecorder, 
     if lens is not None:
         with recorder.run("lens"):  # colour bilinear (then vignetting, before the post-effects), passes nearest
             lens.apply(result)
+    if wanted:  # the pixels the laparoscope mask blacks out, in the output's pixels
+        groundtruth.mark_scope_mask(result.passes, scene, groundtruth.scope_mask_id(scene))
     return result, positions
 
 
@@ -160,7 +162,8 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
             written += _write_frame(out, k, plan, recorder, world, image, result.hdr)
             if "write_passes" in plan:
                 with recorder.run("write_passes"):
-                    written += groundtruth.write_passes(out, k, result.passes, _body_ids(world))
+                    written += groundtruth.write_passes(out, k, result.passes, _body_ids(world),
+                                                        groundtruth.scope_mask_id(scene))
             if "write_geometry" in plan:
                 with recorder.run("write_geometry"):
                     written += groundtruth.write_geometry(out, k, result.geometry, t)

@@ -37,13 +37,14 @@ def _check(path: Path, name: str, array: np.ndarray, seen: np.ndarray, tissue: n
                          f"(first at row {row}, column {col})")
 
 
-def write_passes(out: Path, index: int, passes: dict, body_ids: list[int]) -> list[Path]:
+def write_passes(out: Path, index: int, passes: dict, body_ids: list[int], scope_id: int | None = None) -> list[Path]:
     """Write frame ``index``'s passes; ``body_ids`` are the instance ids of simulated bodies (where material
-    coordinates must be finite). Returns the paths written."""
+    coordinates must be finite), ``scope_id`` the scope mask's (its pixels may see nothing). Returns the paths
+    written."""
     written = []
     ids = passes.get("segmentation")
     depth = passes.get("depth")
-    seen = ids > 0 if ids is not None else (np.isfinite(depth) if depth is not None else None)
+    seen = (ids > 0) & (ids != scope_id) if ids is not None else (np.isfinite(depth) if depth is not None else None)
     tissue = np.isin(ids, body_ids) if ids is not None else None
     for name, array in passes.items():
         path = pass_path(out, name, index)
