@@ -57,10 +57,12 @@ def render_hdr(world: World, scene: Scene, plan: Plan, recorder: StageRecorder, 
         result.passes = groundtruth.ground_truth(objects, groundtruth.rest_positions(world, objects), view, wanted,
                                                  recorder)
         if any(name in groundtruth.MOTION_PASSES for name in wanted):
-            result.geometry = groundtruth.frame_geometry(objects, camera)  # for the motion passes (write_geometry)
+            result.geometry = groundtruth.frame_geometry(objects, camera, None if lens is None else lens.k)  # write_geometry
     if lens is not None:
         with recorder.run("lens"):  # colour bilinear (then vignetting, before the post-effects), passes nearest
             lens.apply(result)
+    if wanted:  # the pixels the laparoscope mask blacks out, in the output's pixels
+        groundtruth.mark_scope_mask(result.passes, scene, groundtruth.scope_mask_id(scene))
     return result, positions
 
 
@@ -183,7 +185,8 @@ def render_frame_files(out: Path, k: int, world: World, scene: Scene, plan: Plan
     written = _write_frame(out, k, plan, recorder, world, image, result.hdr)
     if "write_passes" in plan:
         with recorder.run("write_passes"):
-            written += groundtruth.write_passes(out, k, result.passes, _body_ids(world))
+            written += groundtruth.write_passes(out, k, result.passes, _body_ids(world),
+                                                groundtruth.scope_mask_id(scene))
     if "write_geometry" in plan:
         with recorder.run("write_geometry"):
             written += groundtruth.write_geometry(out, k, result.geometry, t)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from tissuerender.groundtruth.scope import SCOPE_MASK, scope_mask_params
 from tissuerender.renderer.camera import Camera, camera_basis
 
 CONVENTIONS = ("OpenCV pinhole camera: camera axes x right, y down, z forward; world_to_camera maps world "
@@ -74,7 +75,8 @@ def labels(scene) -> list[dict]:
     ``tissuerender.render_inputs.render_objects`` draws them (bodies, static surfaces, visible tools; bodies
     and surfaces each in scene order, as ``tissuerender.world.build_world`` builds them), so the instance id
     of render object ``k`` is ``k + 1``. ``class`` is the semantic class: the tissue's material preset for
-    bodies and surfaces, ``"tool"`` for tools."""
+    bodies and surfaces, ``"tool"`` for tools; last, ``"scope_mask"`` when the effect chain has the
+    laparoscope mask (``tissuerender.groundtruth.scope``)."""
     table = [{"id": 0, "name": "background", "kind": "background", "class": "background"}]
     for kind in ("body", "surface"):
         for obj in scene.objects:
@@ -83,4 +85,12 @@ def labels(scene) -> list[dict]:
     for tool in scene.tools:
         if tool.visible:
             table.append({"id": len(table), "name": tool.name, "kind": "tool", "class": "tool"})
+    if scope_mask_params(scene) is not None:  # the pixels the laparoscope mask blacks out (groundtruth.scope)
+        table.append({"id": len(table), "name": SCOPE_MASK, "kind": SCOPE_MASK, "class": SCOPE_MASK})
     return table
+
+
+def scope_mask_id(scene) -> int | None:
+    """The scope mask's instance id (the last one), None when the effect chain has no laparoscope mask."""
+    last = labels(scene)[-1]
+    return last["id"] if last["kind"] == SCOPE_MASK else None

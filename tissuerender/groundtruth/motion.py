@@ -27,16 +27,30 @@ for a sequence. The motion of frame ``t``'s pixels to frame ``t2``:
    an infinite gradient, so a point on it is taken as visible. Pixels that see nothing are never occluded;
    their flows are NaN.
 
+**Through a lens** (``Geometry.lens_k``, ``[camera.lens]``): every 2D value is in the distorted image's pixels.
+The per-pixel raster of a frame is its lens's pinhole raster remapped by ``FisheyeLens.remap_nearest`` (the
+remap of every other pass), so a distorted pixel's ``X`` is the point its depth, segmentation and material
+coordinates show; ``project`` is ``FisheyeLens.project`` (so ``project_t(X)`` is within the nearest remap's
+half pinhole pixel, carried through the distortion, of the pixel centre). Off-screen is decided in distorted
+pixels. The inverse-depth comparison is made in the pinhole raster, where ``w`` is still exactly affine per
+planar triangle, so the bound above holds unchanged with ``r`` the exact distance in pinhole pixels between
+``X2``'s undistorted position and the centre of the pinhole pixel that ``X2``'s nearest distorted pixel
+samples (no longer bounded by ``sqrt(2)/2``: it is computed per point, and the gradients are per pinhole
+pixel, ``K`` the pinhole's).
+
 The geometry is stored as float32 (``write_geometry``), so a re-raster may differ from the colour image's
 float64 raster on a pixel whose centre lies within float32 rounding of a silhouette edge.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 
+
 from tissuerender.groundtruth.cameras import intrinsics, world_to_camera
+from tissuerender.groundtruth.lens import FisheyeLens, fisheye_lens
 from tissuerender.renderer.camera import Camera
 from tissuerender.renderer.gbuffer import RenderSurface, rasterise
 
@@ -47,12 +61,32 @@ W_ROUNDING = 1e-9  # relative float64 rounding allowance of an inverse depth (mo
 class Geometry:
     """One frame's render geometry: vertex ``points`` (n, 3) [m] of every render object in draw order,
     ``triangles`` (t, 3) into them (fixed for a sequence), ``tri_object`` (t,) the render object index of each
-    triangle (segmentation id - 1) and the ``camera``."""
+    triangle (segmentation id - 1) and the ``camera``; ``lens_k`` the Kannala-Brandt coefficients (k1..k4) of
+    ``[camera.lens]`` (None: a pinhole)."""
 
     points: np.ndarray
     triangles: np.ndarray
     tri_object: np.ndarray
     camera: Camera
+    lens_k: tuple | None = None
+
+
+@lru_cache(maxsize=8)
+def _lens_at_origin(fov_deg: float, width: int, height: int, k: tuple) -> FisheyeLens:
+    camera = Camera(position=(0.0, 0.0, 0.0), look_at=(0.0, 1.0, 0.0), up=(0.0, 0.0, 1.0), fov_deg=fov_deg,
+                    near=1.0, far=2.0, width=width, height=height)
+    return fisheye_lens(camera, k)
+
+
+def lens_of(camera: Camera, lens_k) -> FisheyeLens | None:
+    """The lens (no vignetting: it touches no pass) of coefficients ``lens_k`` on ``camera`` (its pinhole posed
+    as ``camera``), None for ``lens_k`` None. Built from the field, size and coefficients as the render's."""
+    if lens_k is None:
+        return None
+    lens = _lens_at_origin(float(camera.fov_deg), int(camera.width), int(camera.height),
+                           tuple(float(c) for c in lens_k))
+    p = lens.pinhole
+    return replace(lens, pinhole=replace(camera, width=p.width, height=p.height, fov_deg=p.fov_deg))
 
 
 @dataclass
@@ -75,6 +109,7 @@ class _Visible:
 
     depth: np.ndarray
     grad_w: np.ndarray
+    lens: FisheyeLens | None = None  # with a lens, both are the pinhole raster's (module docstring)
 
 
 def _camera_coords(points: np.ndarray, camera: Camera) -> np.ndarray:
@@ -83,11 +118,15 @@ def _camera_coords(points: np.ndarray, camera: Camera) -> np.ndarray:
     return np.asarray(points, float) @ T[:3, :3].T + T[:3, 3]
 
 
-def _project(points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+def _project(points: np.ndarray, camera: Camera, lens: FisheyeLens | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The one projection of world points (..., 3) into output pixel coordinates: ((..., 2) (u, v), OpenCV
     convention, pixel (column u, row v)'s centre at integer (u, v); (...,) camera z [m]). Through ``K`` and
-    ``world_to_camera`` as written to ``cameras.json``; every 2D motion value is made here."""
+    ``world_to_camera`` as written to ``cameras.json`` (and the lens's distortion when ``lens`` is given);
+    every 2D motion value is made here."""
     xc = _camera_coords(points, camera)
+    if lens is not None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return lens.project(xc), xc[..., 2]
     K = intrinsics(camera)
     z = xc[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -123,10 +162,14 @@ def carry(geom: Geometry, targets: list[np.ndarray]) -> _Carried:
         if np.shape(points) != (n, 3):
             raise ValueError(f"carry: expected target vertex positions of shape ({n}, 3), found {np.shape(points)}")
     attributes = np.concatenate([np.asarray(p, float) for p in targets], axis=1) if targets else np.zeros((n, 0))
-    surface, raster = rasterise(_surface(geom, attributes), geom.camera, 1, False, 0)
-    covered = raster.tri_id >= 0
-    tri = raster.tri_id[covered]
-    bary = raster.bary[covered]
+    lens = lens_of(geom.camera, geom.lens_k)
+    surface, raster = rasterise(_surface(geom, attributes), geom.camera if lens is None else lens.pinhole, 1, False, 0)
+    tri_id, bary = raster.tri_id, raster.bary
+    if lens is not None:  # the distorted image's pixels: the remap of every other pass
+        tri_id, bary = lens.remap_nearest(tri_id), lens.remap_nearest(bary)
+    covered = tri_id >= 0
+    tri = tri_id[covered]
+    bary = bary[covered]
     corners = surface.triangles[tri]  # (k, 3) clipped-surface vertex ids
     X = np.einsum("kc,kcd->kd", bary, surface.points[corners])
     carried, corner_points = [], []
@@ -139,16 +182,20 @@ def carry(geom: Geometry, targets: list[np.ndarray]) -> _Carried:
 
 def visible_surface(geom: Geometry) -> _Visible:
     """Frame ``geom``'s depth and per-pixel inverse-depth gradient, for :func:`occluded_in`."""
-    surface, raster = rasterise(_surface(geom, np.zeros((geom.points.shape[0], 0))), geom.camera, 1, False, 0)
+    lens = lens_of(geom.camera, geom.lens_k)
+    view = geom.camera if lens is None else lens.pinhole
+    surface, raster = rasterise(_surface(geom, np.zeros((geom.points.shape[0], 0))), view, 1, False, 0)
     covered = raster.tri_id >= 0
     grad = np.zeros(raster.depth.shape)
-    grad[covered] = _inverse_depth_gradient(surface.points[surface.triangles[raster.tri_id[covered]]], geom.camera)
-    return _Visible(raster.depth, grad)
+    grad[covered] = _inverse_depth_gradient(surface.points[surface.triangles[raster.tri_id[covered]]], view)
+    return _Visible(raster.depth, grad, lens)
 
 
 def occluded_in(X2: np.ndarray, corners2: np.ndarray, visible: _Visible, camera: Camera) -> np.ndarray:
     """(k,) bool: world points ``X2`` (k, 3) lying on triangles with corners ``corners2`` (k, 3, 3) are hidden
     in the frame whose visible surface is ``visible`` seen by ``camera`` (module docstring, step 3)."""
+    if visible.lens is not None:
+        return _occluded_through_lens(X2, corners2, visible, camera)
     h, w = visible.depth.shape
     xc = _camera_coords(X2, camera)
     z = xc[:, 2]
@@ -166,6 +213,38 @@ def occluded_in(X2: np.ndarray, corners2: np.ndarray, visible: _Visible, camera:
     w_seen = 1.0 / visible.depth[row, col]  # 0 where nothing is seen: never in front
     r = np.hypot(u[k] - col, v[k] - row)
     grad_A = _inverse_depth_gradient(corners2[k], camera)
+    with np.errstate(invalid="ignore"):
+        tolerance = (grad_A + visible.grad_w[row, col]) * r + W_ROUNDING * w_point
+        occluded[k] = w_point < w_seen - np.nan_to_num(tolerance, nan=np.inf)
+    return occluded
+
+
+def _occluded_through_lens(X2, corners2, visible: _Visible, camera: Camera) -> np.ndarray:
+    """:func:`occluded_in` through ``visible.lens``: off-screen in distorted pixels, the inverse-depth test in
+    the pinhole raster at the pinhole pixel sampled by ``X2``'s nearest distorted pixel (module docstring)."""
+    lens = visible.lens
+    h, w = lens.height, lens.width
+    xc = _camera_coords(X2, camera)
+    z = xc[:, 2]
+    ok = z > 0.0
+    uv = np.full((z.size, 2), np.nan)
+    uv[ok] = lens.project(xc[ok])
+    with np.errstate(invalid="ignore"):
+        inside = (ok & (z >= camera.near) & (z <= camera.far) & (uv[:, 0] >= -0.5) & (uv[:, 0] < w - 0.5)
+                  & (uv[:, 1] >= -0.5) & (uv[:, 1] < h - 0.5))
+    occluded = ~inside
+    k = np.flatnonzero(inside)
+    q_col = np.floor(uv[k, 0] + 0.5).astype(np.int64)
+    q_row = np.floor(uv[k, 1] + 0.5).astype(np.int64)
+    col = np.rint(lens.map_u[q_row, q_col]).astype(np.int64)  # the pinhole pixel remap_nearest gives q
+    row = np.rint(lens.map_v[q_row, q_col]).astype(np.int64)
+    K_p = intrinsics(lens.pinhole)
+    u_p = K_p[0, 0] * xc[k, 0] / z[k] + K_p[0, 2]  # X2's undistorted position in the pinhole raster
+    v_p = K_p[1, 1] * xc[k, 1] / z[k] + K_p[1, 2]
+    w_point = 1.0 / z[k]
+    w_seen = 1.0 / visible.depth[row, col]  # 0 where nothing is seen: never in front
+    r = np.hypot(u_p - col, v_p - row)
+    grad_A = _inverse_depth_gradient(corners2[k], lens.pinhole)
     with np.errstate(invalid="ignore"):
         tolerance = (grad_A + visible.grad_w[row, col]) * r + W_ROUNDING * w_point
         occluded[k] = w_point < w_seen - np.nan_to_num(tolerance, nan=np.inf)
@@ -198,21 +277,24 @@ def flow_between(geom_t: Geometry, geom_t2: Geometry, cam_t: Camera | None = Non
     cam_t2 = geom_t2.camera if cam_t2 is None else cam_t2
     if geom_t.triangles.shape != geom_t2.triangles.shape or not np.array_equal(geom_t.triangles, geom_t2.triangles):
         raise ValueError("flow_between: the two frames' geometries have different triangles (not one sequence)")
-    geom = Geometry(geom_t.points, geom_t.triangles, geom_t.tri_object, cam_t)
+    geom = Geometry(geom_t.points, geom_t.triangles, geom_t.tri_object, cam_t, geom_t.lens_k)
     carried = carry(geom, [geom_t2.points])
     if visible_t2 is None:
-        visible_t2 = visible_surface(Geometry(geom_t2.points, geom_t2.triangles, geom_t2.tri_object, cam_t2))
-    return _motion_arrays(carried, 0, cam_t, cam_t2, visible_t2)
+        visible_t2 = visible_surface(Geometry(geom_t2.points, geom_t2.triangles, geom_t2.tri_object, cam_t2,
+                                              geom_t2.lens_k))
+    return _motion_arrays(carried, 0, cam_t, cam_t2, visible_t2, lens_of(cam_t, geom_t.lens_k))
 
 
-def _motion_arrays(carried: _Carried, j: int, cam_t: Camera, cam_t2: Camera, visible_t2: _Visible):
-    """(flow, occluded, scene_flow) of target ``j`` of ``carried`` (see :func:`flow_between`)."""
+def _motion_arrays(carried: _Carried, j: int, cam_t: Camera, cam_t2: Camera, visible_t2: _Visible,
+                   lens_t: FisheyeLens | None = None):
+    """(flow, occluded, scene_flow) of target ``j`` of ``carried`` (see :func:`flow_between`); ``lens_t`` frame
+    ``t``'s lens (frame ``t2``'s is ``visible_t2.lens``)."""
     h, w = carried.covered.shape
     X, X2 = carried.X, carried.targets[j]
     flow = np.full((h, w, 2), np.nan, np.float32)
     scene_flow = np.full((h, w, 3), np.nan, np.float32)
     occluded = np.zeros((h, w), bool)
-    flow[carried.covered] = _project(X2, cam_t2)[0] - _project(X, cam_t)[0]
+    flow[carried.covered] = _project(X2, cam_t2, visible_t2.lens)[0] - _project(X, cam_t, lens_t)[0]
     scene_flow[carried.covered] = X2 - X
     occluded[carried.covered] = occluded_in(X2, carried.corners[j], visible_t2, cam_t2)
     return flow, occluded, scene_flow
@@ -240,15 +322,17 @@ def neighbour_flows(geom: Geometry, previous: Geometry | None, following: Geomet
             arrays = no_neighbour(carried.covered)
         else:
             visible = visible_surface(other) if visible is None else visible
-            arrays = _motion_arrays(carried, j, geom.camera, other.camera, visible)
+            arrays = _motion_arrays(carried, j, geom.camera, other.camera, visible, lens_of(geom.camera, geom.lens_k))
             j += 1
         out[f"flow_{name}"], out[f"occluded_{name}"], out[f"scene_flow_{name}"] = arrays
     return out
 
 
-def frame_geometry(objects, camera: Camera) -> Geometry:
+def frame_geometry(objects, camera: Camera, lens_k=None) -> Geometry:
     """The render ``objects``' geometry (``tissuerender.renderer.RenderObject`` list, in draw order) as
-    :class:`Geometry` with float32 points (as ``write_geometry`` stores them)."""
+    :class:`Geometry` with float32 points (as ``write_geometry`` stores them); ``lens_k`` the lens's
+    coefficients (None: a pinhole)."""
+    lens_k = None if lens_k is None else tuple(float(c) for c in lens_k)
     points, triangles, tri_object = [], [], []
     offset = 0
     for k, obj in enumerate(objects):
@@ -259,6 +343,7 @@ def frame_geometry(objects, camera: Camera) -> Geometry:
         tri_object.append(np.full(t.shape[0], k, np.int32))
         offset += p.shape[0]
     if not points:
-        return Geometry(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros(0, np.int32), camera)
+        return Geometry(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros(0, np.int32), camera,
+                        lens_k)
     return Geometry(np.concatenate(points).astype(np.float32), np.concatenate(triangles).astype(np.int32),
-                    np.concatenate(tri_object), camera)
+                    np.concatenate(tri_object), camera, lens_k)

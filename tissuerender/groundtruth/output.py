@@ -37,13 +37,14 @@ def _check(path: Path, name: str, array: np.ndarray, seen: np.ndarray, tissue: n
                          f"(first at row {row}, column {col})")
 
 
-def write_passes(out: Path, index: int, passes: dict, body_ids: list[int]) -> list[Path]:
+def write_passes(out: Path, index: int, passes: dict, body_ids: list[int], scope_id: int | None = None) -> list[Path]:
     """Write frame ``index``'s passes; ``body_ids`` are the instance ids of simulated bodies (where material
-    coordinates must be finite). Returns the paths written."""
+    coordinates must be finite), ``scope_id`` the scope mask's (its pixels may see nothing). Returns the paths
+    written."""
     written = []
     ids = passes.get("segmentation")
     depth = passes.get("depth")
-    seen = ids > 0 if ids is not None else (np.isfinite(depth) if depth is not None else None)
+    seen = (ids > 0) & (ids != scope_id) if ids is not None else (np.isfinite(depth) if depth is not None else None)
     tissue = np.isin(ids, body_ids) if ids is not None else None
     for name, array in passes.items():
         path = pass_path(out, name, index)
@@ -93,7 +94,7 @@ def _write_npz(path: Path, arrays: dict) -> None:
 def write_geometry(out: Path, index: int, geometry, time: float) -> list[Path]:
     """Frame ``index``'s render geometry (``motion.Geometry``): ``passes/geometry_NNNN.npz`` with ``points``
     (n, 3) float32 [m], the frame's ``time`` [s] and the camera (``camera_<field>`` of
-    ``tissuerender.renderer.camera.Camera``); the sequence's triangles once in ``passes/geometry_topology.npz``
+    ``tissuerender.renderer.camera.Camera``) and, through a lens, its coefficients ``lens_k`` (4,); the sequence's triangles once in ``passes/geometry_topology.npz``
     (``triangles`` (t, 3) int32, ``tri_object`` (t,) int32), rewritten only when they differ (another scene
     rendered into the folder before)."""
     written = []
@@ -113,6 +114,8 @@ def write_geometry(out: Path, index: int, geometry, time: float) -> list[Path]:
     cam = geometry.camera
     arrays = {"points": np.asarray(geometry.points, np.float32), "time": np.float64(time)}
     arrays.update({f"camera_{k}": np.asarray(getattr(cam, k), float) for k in CAMERA_KEYS})
+    if geometry.lens_k is not None:
+        arrays["lens_k"] = np.asarray(geometry.lens_k, float)
     path = geometry_path(out, index)
     _write_npz(path, arrays)
     return written + [path]
@@ -132,6 +135,7 @@ def read_geometry(out: Path, index: int):
             triangles, tri_object = top["triangles"], top["tri_object"]
             points = g["points"]
             values = {k: g[f"camera_{k}"] for k in CAMERA_KEYS}
+            lens_k = tuple(g["lens_k"].tolist()) if "lens_k" in g.files else None
     except (OSError, ValueError, KeyError) as e:
         raise UserError(f"{path}: expected a render geometry file (points, camera_*), found an unreadable one: "
                         f"{e}") from None
@@ -141,7 +145,7 @@ def read_geometry(out: Path, index: int):
     if triangles.size and int(triangles.max()) >= points.shape[0]:
         raise UserError(f"{path}: expected {int(triangles.max()) + 1} or more vertices for {topology.name}, "
                         f"found {points.shape[0]}")
-    return Geometry(points, triangles, tri_object, camera)
+    return Geometry(points, triangles, tri_object, camera, lens_k)
 
 
 def write_array(path: Path, array: np.ndarray) -> Path:

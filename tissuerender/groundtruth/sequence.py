@@ -10,6 +10,7 @@ from tissuerender.groundtruth.cameras import labels
 from tissuerender.groundtruth.motion import flow_between, neighbour_flows, visible_surface
 from tissuerender.groundtruth.output import geometry_path, pass_path, read_geometry, write_array
 from tissuerender.groundtruth.tracks import compute_tracks, write_tracks
+from tissuerender.errors import UserError
 from tissuerender.stages import StageRecorder, recorder_or_new
 
 MOTION_PASSES = ("flow", "scene_flow", "tracks")  # computed from the geometry of several frames
@@ -75,6 +76,10 @@ def finish_sequence(out: Path, scene, finished, frames: int | None = None,
         with rec.run("passes.tracks"):
             geometries = [read_geometry(out, k) for k in range(1, frames + 1)]
             bodies = [entry["id"] - 1 for entry in labels(scene) if entry["kind"] == "body"]
-            tracks = compute_tracks(geometries, bodies, scene.output.track_points, scene.seed)
+            try:
+                tracks = compute_tracks(geometries, bodies, scene.output.track_points, scene.seed,
+                                        scene.output.track_queries)
+            except ValueError as e:
+                raise UserError(f"{scene.path}: output.{e}") from None
             written += write_tracks(out, tracks, geometries, scene.name)
     return written

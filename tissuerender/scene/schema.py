@@ -380,6 +380,10 @@ class Output(Strict):
     track_points: Annotated[int, Field(ge=1, le=1_000_000, description=(
         "with passes = [..., \"tracks\"]: number of query points sampled (scene seed) on the tissue seen in "
         "frame 1"))] = 256
+    track_queries: Annotated[list[Annotated[list[Annotated[int, Field(ge=0)]], Field(min_length=3, max_length=3)]],
+                             Field(max_length=1_000_000, description=(
+        "with passes = [..., \"tracks\"]: the query points as [t, y, x] (frame index from 0, pixel row, pixel "
+        "column; the pixel must see tissue or a tool in frame t), tracked instead of sampled ones"))] = []
 
 
 class EffectsBase(Strict):

@@ -179,12 +179,17 @@ def _output(scene):
     out = scene.output
     if "jitter" in _set(out) and out.supersampling == 1:
         return "output.jitter", "jitters the supersamples within a pixel, but supersampling = 1; remove it"
-    motion = [name for name in ("flow", "scene_flow", "tracks") if name in out.passes]
-    if motion and getattr(scene.camera, "lens", None) is not None:
-        return "output.passes", (f"{motion[0]} through camera.lens is not implemented yet (the motion passes are "
-                                 "exact for a pinhole only): remove camera.lens or the motion passes")
     if "track_points" in _set(out) and "tracks" not in out.passes:
         return "output.track_points", "sets the number of tracked points, but passes does not list tracks; remove it"
+    if "track_queries" in _set(out) and "tracks" not in out.passes:
+        return "output.track_queries", "gives query points to track, but passes does not list tracks; remove it"
+    if "track_queries" in _set(out) and "track_points" in _set(out):
+        return "output.track_points", "the points tracked are track_queries' when given; remove track_points"
+    width, height = out.resolution
+    for i, (t, y, x) in enumerate(out.track_queries):
+        if t >= out.frames or y >= height or x >= width:
+            return f"output.track_queries[{i}]", (f"expected [t, y, x] with t < frames = {out.frames}, y < {height} "
+                                                  f"and x < {width}, found {[t, y, x]}")
     if "mp4" in out.formats and "png" not in out.formats:
         return "output.formats", "mp4 is made from the PNG frames at the end of the sequence: add \"png\""
     if "depth_png" in out.formats and "depth" not in out.passes:
