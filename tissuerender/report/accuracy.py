@@ -26,8 +26,10 @@ from tissuerender.errors import UserError
 from tissuerender.files import output_folder, write_atomic, write_json
 from tissuerender.manifest import package_versions
 from tissuerender.report import cases as case_runs
+from tissuerender.report import scene as scene_report
 from tissuerender.report.claims import CLAIMS, claims_table
 from tissuerender.report.html import render_html
+from tissuerender.scene import load_scene
 
 KIND = "tissuerender.report.accuracy"
 FORMAT = 1  # bump when the stored case layout changes
@@ -108,44 +110,67 @@ class _Bar:
             self.progress.stop()
 
 
+def _cached(path: Path, key: dict, compute) -> tuple[dict, bool, float]:
+    """The result stored at ``path`` under ``key``, or ``compute()`` stored there: (result, cached, wall s)."""
+    stored = _stored(path, key)
+    if stored is not None:
+        return stored["result"], True, stored["wall_s"]
+    t0 = time.perf_counter()
+    result = finite_json(compute())
+    wall = time.perf_counter() - t0
+    write_json(path, {"kind": KIND, "key": key, "wall_s": wall, "result": result})
+    return result, False, wall
+
+
 def run_report(out, quick: bool = False, cases: list[str] | None = None, level: str | None = None,
-               progress: bool = False) -> dict:
+               progress: bool = False, scene=None, budget: dict | None = None) -> dict:
     """Run (or reuse) every case, write the JSON and HTML; returns the report dict. ``level`` is the sweep
-    size: "full", "quick" (``--quick``) or "tiny" (the test suite's); it defaults from ``quick``."""
+    size: "full", "quick" (``--quick``) or "tiny" (the test suite's); it defaults from ``quick``. With a
+    ``scene`` (``scene.py``) the report is that scene's, and runs the cases only when ``cases`` names them."""
     out = output_folder(out)
     level = level or ("quick" if quick else "full")
-    names = cases if cases is not None else parse_cases(None, quick)
+    names = cases if cases is not None else [] if scene is not None else parse_cases(None, quick)
     versions, code = package_versions(), code_hash()
     results, timings = {}, {}
     units = {name: case_runs.work_units(name, case_runs.sweep_for(name, level)) for name in names}
-    bar = _Bar(progress, sum(units.values()))
+    scene_sweep = scene_report.SCENE_SWEEPS[level]
+    budget = scene_report.parse_budget(None) if budget is None else budget
+    bar = _Bar(progress, sum(units.values()) + (scene_report.work_units(scene, scene_sweep) if scene else 0))
     start = time.perf_counter()
+    scene_result = None
     try:
+        if scene is not None:
+            bar.show(scene.name)
+
+            def part(name, compute):
+                key = finite_json({"scene": scene.sha256, "part": name, "sweep": scene_sweep, "versions": versions,
+                                   "code": code, "format": FORMAT})
+                result, cached, wall = _cached(out / "cases" / f"scene_{scene.name}_{name}.json", key, compute)
+                if cached:
+                    bar.advance(scene_report.part_units(scene, scene_sweep, name))
+                return {**result, "cached": cached, "computed_wall_s": wall}
+
+            scene_result = scene_report.run_scene_parts(scene, budget, scene_sweep, part, bar.advance)
         for name in names:
             bar.show(name)
             sweep = case_runs.sweep_for(name, level)
             key = finite_json({"case": name, "sweep": sweep, "versions": versions, "code": code, "format": FORMAT})
             path = out / "cases" / f"{name}.json"
-            stored = _stored(path, key)
-            if stored is not None:
-                results[name] = {**stored["result"], "cached": True, "computed_wall_s": stored["wall_s"]}
+            result, cached, wall = _cached(path, key, lambda: case_runs.run_case(name, sweep, bar.advance))
+            if cached:
                 bar.advance(units[name])
-            else:
-                t0 = time.perf_counter()
-                result = finite_json(case_runs.run_case(name, sweep, bar.advance))
-                wall = time.perf_counter() - t0
-                write_json(path, {"kind": KIND, "key": key, "wall_s": wall, "result": result})
-                results[name] = {**result, "cached": False, "computed_wall_s": wall}
-            timings[name] = results[name]["computed_wall_s"]
+            results[name] = {**result, "cached": cached, "computed_wall_s": wall}
+            timings[name] = wall
     finally:
         bar.close()
     report = {"kind": KIND, "format": FORMAT, "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-              "command": "tissuerender report accuracy" + (" --quick" if quick else "")
+              "command": "tissuerender report accuracy" + (f" {scene.path}" if scene is not None else "")
+              + (" --quick" if quick else "")
               + (f" --cases {','.join(names)}" if cases is not None else ""),
               "level": level, "sweeps": {n: case_runs.sweep_for(n, level) for n in names},
               "versions": versions, "code_sha256": code, "machine": machine(),
               "wall_s": time.perf_counter() - start, "case_wall_s": timings,
-              "cases": results, "claims": claims_table(results), "claims_listed": [c.id for c in CLAIMS],
+              "cases": results, "scene": scene_result, "claims": claims_table(results), "claims_listed": [c.id for c in CLAIMS],
               "not_covered": NOT_COVERED}
     report = finite_json(report)
     write_json(out / "report.json", report)
@@ -156,7 +181,7 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
 
 NOT_COVERED = [
     "rendering sweeps (light samples, estimators, SSS, supersampling; FLIP against high-sample references)",
-    "the user's own scene (tissuerender report accuracy SCENE --budget ...)",
+    "the user's own scene against a reference on a refined mesh (it is measured on the scene's own mesh)",
     "pyvista pictures of the error field on the deformed mesh",
     "quadratic (10-node) tetrahedra and mesh-converged references at several mesh levels",
     "the viscoelastic cube, the cantilever under gravity, Qian's claims (XPBD 1e-4 vs Newton 1e-5, "
@@ -167,8 +192,19 @@ NOT_COVERED = [
 
 def _cmd_accuracy(args) -> int:
     names = parse_cases(args.cases, args.quick)
+    budget = scene_report.parse_budget(args.budget)
+    if args.budget is not None and args.scene is None:
+        raise UserError("--budget: applies to a scene's report; name the scene: tissuerender report accuracy "
+                        "SCENE -o DIR --budget ...")
+    scene = load_scene(args.scene) if args.scene is not None else None
     out = output_folder(args.out)
-    report = run_report(out, quick=args.quick, cases=names if args.cases else None, progress=not args.quiet)
+    report = run_report(out, quick=args.quick, cases=names if args.cases else None, progress=not args.quiet,
+                        scene=scene, budget=budget)
+    if not args.quiet and scene is not None:
+        for part in ("simulation", "rendering"):
+            done = report["scene"][part]
+            print(f"{scene.name} {part}: " + (f"not measured: {done['skipped']}" if "skipped" in done else
+                                              f"cheapest within the budget: {done['cheapest']['text']}"))
     if not args.quiet:
         verdicts = [row["verdict"] for row in report["claims"]]
         cached = sum(1 for c in report["cases"].values() if c["cached"])
@@ -182,7 +218,9 @@ def add_cli(subparsers) -> None:
     report = subparsers.add_parser("report", help="accuracy and cost reports")
     sub = report.add_subparsers(dest="report_command", required=True)
     p = sub.add_parser("accuracy", help="error against converged references versus wall time, and the theses' claims")
+    p.add_argument("scene", nargs="?", default=None, help="a scene file: report on its own settings (docs/report.md)")
     p.add_argument("-o", "--out", required=True, help="output folder (report.html, report.json, cases/)")
+    p.add_argument("--budget", default=None, help="with a scene: error budget, e.g. sim=1%%,flip=0.002[,rmse=0.05]")
     p.add_argument("--quick", action="store_true", help="coarser meshes, fewer settings and cases (about 2 minutes)")
     p.add_argument("--cases", default=None, help=f"comma-separated subset of {', '.join(case_runs.CASES)}")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")

@@ -134,6 +134,77 @@ def _case_section(case: dict) -> str:
     return "\n".join(parts)
 
 
+def sweep_png(points: list[dict], pareto: list[int], error_key: str, time_key: str, xlabel: str, ylabel: str,
+              title: str) -> bytes:
+    """One sweep's error against its cost per frame, the scene's own setting starred, the Pareto front joined."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=80)
+    ok = [p for p in points if p.get(error_key) is not None and p[error_key] > 0.0]
+    ax.scatter([p[time_key] for p in ok], [p[error_key] for p in ok], color="tab:blue", label="settings")
+    for p in ok:
+        ax.annotate(p["label"], (p[time_key], p[error_key]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+    mine = [p for p in ok if p.get("scene")]
+    ax.scatter([p[time_key] for p in mine], [p[error_key] for p in mine], marker="*", s=200, color="tab:red",
+               zorder=4, label="the scene's")
+    front = [points[i] for i in pareto if points[i] in ok]
+    ax.plot([p[time_key] for p in front], [p[error_key] for p in front], "k-", lw=1.2, zorder=0, label="Pareto front")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    return _png(fig)
+
+
+def _img(png: bytes, figure: str, alt: str) -> str:
+    data = base64.b64encode(png).decode("ascii")
+    return f'<img class="figure" data-figure="{figure}" alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+
+
+def scene_section(scene: dict) -> str:
+    """The user's scene (``scene.py``): both sweeps, the reference, and the cheapest setting within the budget."""
+    budget = ", ".join(f"{k} {_num(v)}" for k, v in scene["budget"].items())
+    parts = [f'<h2 id="scene">Your scene: {html.escape(scene["name"])} ({html.escape(scene["path"])})</h2>',
+             f"<p>Budget: {html.escape(budget)} (sim: relative L2 displacement error, largest over the frames; "
+             "flip: mean FLIP; rmse: relative RMSE of the HDR).</p>"]
+    sim = scene["simulation"]
+    cached = " <em>(cached)</em>" if sim.get("cached") else ""
+    if "skipped" in sim:
+        parts.append(f"<h3>Simulation{cached}</h3><p>Not measured: {html.escape(sim['skipped'])}.</p>")
+    else:
+        ref = sim["reference"]
+        parts.append(f"<h3>Simulation: {html.escape(sim['integrator'])}{cached}</h3>")
+        parts.append(_img(sweep_png(sim["points"], sim["pareto"], "rel_l2", "wall_s_per_frame",
+                                    "simulation wall time per frame [s]", "relative L2 displacement error [-]",
+                                    f"{scene['name']}: simulation, {sim['frames']} frames"), "scene-simulation",
+                          "simulation error against time per frame"))
+        parts.append(f"<p>Reference: {html.escape(ref['kind'])}. Its own convergence ({html.escape(ref['what'])}): "
+                     f"{', '.join(_num(d) for d in ref['differences'])} at steps "
+                     f"{', '.join(_num(h) for h in ref['levels_s'])} s ({'falls' if ref['falls'] else 'does NOT fall'}"
+                     f" under refinement).</p>")
+        parts.append(f"<p><b>Cheapest within the budget:</b> {html.escape(sim['cheapest']['text'])}.</p>")
+        parts.append(_table(["setting", "substeps", "iterations", "error (max over frames)", "wall [s] / frame",
+                             "Pareto", "failure"],
+                            [[html.escape(p["label"]), p["substeps"], p["iterations"], _num(p["rel_l2"]),
+                              _num(p["wall_s_per_frame"]), "&#9679;" if i in sim["pareto"] else "",
+                              html.escape(p["diverged"] or "")] for i, p in enumerate(sim["points"])]))
+    ren = scene["rendering"]
+    cached = " <em>(cached)</em>" if ren.get("cached") else ""
+    parts.append(f"<h3>Rendering, frame {ren['frame']} at {ren['resolution'][0]}x{ren['resolution'][1]}{cached}</h3>")
+    parts.append(_img(sweep_png(ren["points"], ren["pareto"], "flip", "seconds", "render time per frame [s]",
+                                "mean FLIP [-]", f"{scene['name']}: rendering"), "scene-rendering",
+                      "FLIP against render time per frame"))
+    parts.append(f"<p>Reference: {html.escape(ren['reference']['kind'])} ({_num(ren['reference']['seconds'])} s).</p>")
+    parts.append(f"<p><b>Cheapest within the budget:</b> {html.escape(ren['cheapest']['text'])}.</p>")
+    parts.append(_table(["setting", "light samples", "supersampling", "FLIP", "relative RMSE", "seconds / frame",
+                         "Pareto"],
+                        [[html.escape(p["label"]), p["samples"], p["supersampling"], _num(p["flip"]), _num(p["rel_rmse"]),
+                          _num(p["seconds"]), "&#9679;" if i in ren["pareto"] else ""]
+                         for i, p in enumerate(ren["points"])]))
+    return "\n".join(parts)
+
+
 def render_html(report: dict) -> str:
     cases = report["cases"]
     claims = _table(
@@ -145,6 +216,8 @@ def render_html(report: dict) -> str:
     machine = report["machine"]
     versions = ", ".join(f"{k} {v}" for k, v in report["versions"].items())
     body = "\n".join(_case_section(case) for case in cases.values())
+    if report.get("scene"):
+        body = scene_section(report["scene"]) + "\n" + body
     not_covered = "".join(f"<li>{html.escape(item)}</li>" for item in report["not_covered"])
     style = ("body{font-family:sans-serif;max-width:70em;margin:1em auto;padding:0 1em}"
              "table{border-collapse:collapse;margin:.5em 0;font-size:90%}td,th{border:1px solid #bbb;padding:2px 6px}"
