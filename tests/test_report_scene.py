@@ -1,5 +1,6 @@
-"""``tissuerender report accuracy SCENE`` (issue 17 item 2): on a tiny xpbd scene (a 0.1 m liver block, 384
-tets, sheared and compressed by a ramp on its top face, 4 frames, 64 x 48 pixels) the simulation error falls as
+"""``tissuerender report accuracy SCENE`` (issue 17 item 2): on a tiny xpbd scene (a 0.1 m liver block made
+stiffer, E = 10 kPa, so the solver's error shows beside the step's; 4 x 4 x 4 cells, sheared and compressed by a
+ramp on its top face, 3 frames measured, 64 x 48 pixels) the simulation error falls as
 the iterations rise, the reference's own error falls under refinement, the cheapest setting named is within the
 budget and nothing cheaper is, FLIP falls with light samples, and bad budgets exit 2. The report runs once per
 module, in-process, at the "tiny" sweep (``tissuerender.report.scene.SCENE_SWEEPS``)."""
@@ -25,6 +26,7 @@ shape = "box"
 size = [0.1, 0.1, 0.1]
 cell_size = 0.025
 material = "liver"
+override = { E = 1e4 }
 fixed = [{ side = "z_min" }]
 prescribed = [{ side = "z_max", displacement = [0.02, 0.0, -0.02], t_start = 0.0, t_end = 0.5 }]
 
@@ -58,7 +60,7 @@ resolution = [64, 48]
 frames = 4
 fps = 24.0
 """
-BUDGET = {"sim": 0.05, "flip": 0.002}
+BUDGET = {"sim": 0.06, "flip": 0.002}
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +80,7 @@ def scene_report(scene_path, tmp_path_factory):
 def test_simulation_error_falls_monotonically_as_iterations_rise(scene_report):
     _, report = scene_report
     sim = report["scene"]["simulation"]
-    assert sim["integrator"] == "xpbd" and sim["frames"] == 4
+    assert sim["integrator"] == "xpbd" and sim["frames"] == 3
     sweep = sorted((p for p in sim["points"] if p["substeps"] == 4), key=lambda p: p["iterations"])
     assert [p["iterations"] for p in sweep] == [1, 2, 4, 8]
     errors = [p["rel_l2"] for p in sweep]

@@ -27,6 +27,7 @@ from tissuerender.files import output_folder, write_atomic, write_json
 from tissuerender.manifest import package_versions
 from tissuerender.report import cases as case_runs
 from tissuerender.report import scene as scene_report
+from tissuerender.report import stage_costs
 from tissuerender.report.claims import CLAIMS, claims_table
 from tissuerender.report.html import render_html
 from tissuerender.scene import load_scene
@@ -53,6 +54,22 @@ def code_hash() -> str:
     """SHA-256 of the source of ``sim/`` and of this package: a stored case is reused only by the same code."""
     h = hashlib.sha256()
     for root in (Path(sim.__file__).parent, Path(__file__).parent):
+        for path in sorted(root.rglob("*.py")):
+            h.update(str(path.relative_to(root.parent)).encode())
+            h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def render_code_hash() -> str:
+    """SHA-256 of the source of every package a render runs (``tissuerender``, ``sim``, ``postfx``,
+    ``materials``): a stored scene sweep or stage cost is reused only by the same code."""
+    import materials
+    import postfx
+    import tissuerender
+
+    h = hashlib.sha256()
+    for package in (tissuerender, sim, postfx, materials):
+        root = Path(package.__file__).parent
         for path in sorted(root.rglob("*.py")):
             h.update(str(path.relative_to(root.parent)).encode())
             h.update(path.read_bytes())
@@ -123,28 +140,34 @@ def _cached(path: Path, key: dict, compute) -> tuple[dict, bool, float]:
 
 
 def run_report(out, quick: bool = False, cases: list[str] | None = None, level: str | None = None,
-               progress: bool = False, scene=None, budget: dict | None = None) -> dict:
+               progress: bool = False, scene=None, budget: dict | None = None, stages: bool | None = None) -> dict:
     """Run (or reuse) every case, write the JSON and HTML; returns the report dict. ``level`` is the sweep
     size: "full", "quick" (``--quick``) or "tiny" (the test suite's); it defaults from ``quick``. With a
-    ``scene`` (``scene.py``) the report is that scene's, and runs the cases only when ``cases`` names them."""
+    ``scene`` (``scene.py``) the report is that scene's, and runs the cases only when ``cases`` names them.
+    ``stages``: the per-stage costs of the shipped scenes (``stage_costs.py``); by default with the default cases."""
     out = output_folder(out)
     level = level or ("quick" if quick else "full")
     names = cases if cases is not None else [] if scene is not None else parse_cases(None, quick)
     versions, code = package_versions(), code_hash()
+    render_code = render_code_hash() if scene is not None or stages is not False else None
     results, timings = {}, {}
     units = {name: case_runs.work_units(name, case_runs.sweep_for(name, level)) for name in names}
     scene_sweep = scene_report.SCENE_SWEEPS[level]
+    stages = (scene is None and cases is None) if stages is None else stages
+    stage_sweep = stage_costs.STAGE_SWEEPS[level]
+    shipped = stage_costs.shipped_scenes() if stages else []
     budget = scene_report.parse_budget(None) if budget is None else budget
-    bar = _Bar(progress, sum(units.values()) + (scene_report.work_units(scene, scene_sweep) if scene else 0))
+    bar = _Bar(progress, sum(units.values()) + (scene_report.work_units(scene, scene_sweep) if scene else 0)
+               + len(shipped))
     start = time.perf_counter()
-    scene_result = None
+    scene_result = costs = None
     try:
         if scene is not None:
             bar.show(scene.name)
 
             def part(name, compute):
                 key = finite_json({"scene": scene.sha256, "part": name, "sweep": scene_sweep, "versions": versions,
-                                   "code": code, "format": FORMAT})
+                                   "code": render_code, "format": FORMAT})
                 result, cached, wall = _cached(out / "cases" / f"scene_{scene.name}_{name}.json", key, compute)
                 if cached:
                     bar.advance(scene_report.part_units(scene, scene_sweep, name))
@@ -161,6 +184,16 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
                 bar.advance(units[name])
             results[name] = {**result, "cached": cached, "computed_wall_s": wall}
             timings[name] = wall
+        if stages:
+            bar.show("per-stage costs")
+            key = finite_json({"scenes": {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in shipped},
+                               "sweep": stage_sweep, "versions": versions, "code": render_code, "format": FORMAT,
+                               "numba_threads": numba.get_num_threads()})
+            result, cached, wall = _cached(out / "cases" / "stage_costs.json", key,
+                                           lambda: stage_costs.run_stage_costs(stage_sweep, shipped, bar.advance))
+            if cached:
+                bar.advance(len(shipped))
+            costs = {**result, "cached": cached, "computed_wall_s": wall}
     finally:
         bar.close()
     report = {"kind": KIND, "format": FORMAT, "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
@@ -170,7 +203,7 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
               "level": level, "sweeps": {n: case_runs.sweep_for(n, level) for n in names},
               "versions": versions, "code_sha256": code, "machine": machine(),
               "wall_s": time.perf_counter() - start, "case_wall_s": timings,
-              "cases": results, "scene": scene_result, "claims": claims_table(results), "claims_listed": [c.id for c in CLAIMS],
+              "cases": results, "scene": scene_result, "stage_costs": costs, "claims": claims_table(results), "claims_listed": [c.id for c in CLAIMS],
               "not_covered": NOT_COVERED}
     report = finite_json(report)
     write_json(out / "report.json", report)

@@ -205,6 +205,44 @@ def scene_section(scene: dict) -> str:
     return "\n".join(parts)
 
 
+def stages_png(costs: dict) -> bytes:
+    """Qian Fig. 7.7's spirit: one stacked bar per shipped scene, the seconds per frame of each stage."""
+    rows = costs["scenes"]
+    stages = list(dict.fromkeys(name for r in rows for name in r["per_frame_s"]))
+    fig, ax = plt.subplots(figsize=(7.2, 4.4), dpi=80)
+    bottom = [0.0] * len(rows)
+    cmap = plt.get_cmap("tab20")
+    for k, name in enumerate(stages):
+        heights = [r["per_frame_s"].get(name, 0.0) for r in rows]
+        ax.bar([r["scene"] for r in rows], heights, bottom=bottom, label=name, color=cmap(k % 20))
+        bottom = [b + h for b, h in zip(bottom, heights)]
+    ax.set_ylabel("seconds per frame")
+    ax.set_title(f"per-stage cost of a frame ({costs['numba_threads']} numba thread(s))", fontsize=10)
+    ax.tick_params(axis="x", labelsize=8)
+    ax.legend(fontsize=6, ncol=2, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return _png(fig)
+
+
+def stage_section(costs: dict, machine: dict) -> str:
+    cached = " <em>(cached)</em>" if costs.get("cached") else ""
+    parts = [f'<h2 id="stage-costs">Per-stage cost of a frame, every shipped scene{cached}</h2>',
+             f"<p>{html.escape(str(machine['processor'] or machine['machine']))}, {machine['cpus']} cpus, "
+             f"{costs['numba_threads']} numba thread(s); each scene's first {costs['sweep']['frames']} frames through "
+             "the pipeline, at the resolution given below, after an untimed run of the same frames"
+             + ("" if costs["sweep"]["warm"] else " (skipped at this level: the figures include numba's cache loading)")
+             + ". Setup (meshing, loading surfaces) is listed apart. Stages with no timing of their own are part of "
+             "the stage named.</p>", _img(stages_png(costs), "stage-costs", "per-stage cost of a frame")]
+    stages = list(dict.fromkeys(name for r in costs["scenes"] for name in r["per_frame_s"]))
+    rows = []
+    for r in costs["scenes"]:
+        inside = "; ".join(f"{k} in {v}" for k, v in r["timed_inside"].items())
+        rows.append([html.escape(r["scene"]), f"{r['resolution'][0]}x{r['resolution'][1]}", _num(r["frame_s"]),
+                     *[_num(r["per_frame_s"].get(n)) for n in stages],
+                     _num(sum(r["setup_s"].values())), html.escape(inside)])
+    parts.append(_table(["scene", "resolution", "frame [s]", *stages, "setup [s]", "timed inside"], rows))
+    return "\n".join(parts)
+
+
 def render_html(report: dict) -> str:
     cases = report["cases"]
     claims = _table(
@@ -216,6 +254,8 @@ def render_html(report: dict) -> str:
     machine = report["machine"]
     versions = ", ".join(f"{k} {v}" for k, v in report["versions"].items())
     body = "\n".join(_case_section(case) for case in cases.values())
+    if report.get("stage_costs"):
+        body += "\n" + stage_section(report["stage_costs"], report["machine"])
     if report.get("scene"):
         body = scene_section(report["scene"]) + "\n" + body
     not_covered = "".join(f"<li>{html.escape(item)}</li>" for item in report["not_covered"])

@@ -48,7 +48,7 @@ SCENE_SWEEPS = {
              "sample_factors": [0.25, 0.5, 1.0, 2.0, 4.0], "supersampling": [-1, 1]},
     "quick": {"frames": 6, "factors": [0.5, 1.0, 2.0], "max_width": 128, "sample_factors": [0.25, 1.0, 2.0],
               "supersampling": [1]},
-    "tiny": {"frames": 4, "factors": [0.25, 0.5, 1.0, 2.0], "max_width": 64, "sample_factors": [0.25, 1.0, 4.0],
+    "tiny": {"frames": 3, "factors": [0.25, 0.5, 1.0, 2.0], "max_width": 64, "sample_factors": [0.25, 1.0, 4.0],
              "supersampling": []},
 }
 
