@@ -27,7 +27,7 @@ from tissuerender.files import output_folder, write_atomic, write_json
 from tissuerender.manifest import package_versions
 from tissuerender.report import cases as case_runs
 from tissuerender.report import scene as scene_report
-from tissuerender.report import stage_costs
+from tissuerender.report import render_sweeps, stage_costs
 from tissuerender.report.claims import CLAIMS, claims_table
 from tissuerender.report.html import render_html
 from tissuerender.scene import load_scene
@@ -144,7 +144,8 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
     """Run (or reuse) every case, write the JSON and HTML; returns the report dict. ``level`` is the sweep
     size: "full", "quick" (``--quick``) or "tiny" (the test suite's); it defaults from ``quick``. With a
     ``scene`` (``scene.py``) the report is that scene's, and runs the cases only when ``cases`` names them.
-    ``stages``: the per-stage costs of the shipped scenes (``stage_costs.py``); by default with the default cases."""
+    ``stages``: the per-stage costs of the shipped scenes (``stage_costs.py``) and the rendering sweeps
+    (``render_sweeps.py``); by default with the default cases."""
     out = output_folder(out)
     level = level or ("quick" if quick else "full")
     names = cases if cases is not None else [] if scene is not None else parse_cases(None, quick)
@@ -157,10 +158,12 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
     stage_sweep = stage_costs.STAGE_SWEEPS[level]
     shipped = stage_costs.shipped_scenes() if stages else []
     budget = scene_report.parse_budget(None) if budget is None else budget
+    render_sweep = render_sweeps.RENDER_SWEEPS[level]
+    render_units = render_sweeps.work_units(render_sweep) if stages else 0
     bar = _Bar(progress, sum(units.values()) + (scene_report.work_units(scene, scene_sweep) if scene else 0)
-               + len(shipped))
+               + len(shipped) + render_units)
     start = time.perf_counter()
-    scene_result = costs = None
+    scene_result = costs = sweeps = None
     try:
         if scene is not None:
             bar.show(scene.name)
@@ -194,6 +197,13 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
             if cached:
                 bar.advance(len(shipped))
             costs = {**result, "cached": cached, "computed_wall_s": wall}
+            bar.show("rendering sweeps")
+            key = {**key, "sweep": render_sweep, "part": "render_sweeps"}
+            result, cached, wall = _cached(out / "cases" / "render_sweeps.json", key,
+                                           lambda: render_sweeps.run_render_sweeps(render_sweep, tick=bar.advance))
+            if cached:
+                bar.advance(render_units)
+            sweeps = {**result, "cached": cached, "computed_wall_s": wall}
     finally:
         bar.close()
     report = {"kind": KIND, "format": FORMAT, "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
@@ -203,7 +213,8 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
               "level": level, "sweeps": {n: case_runs.sweep_for(n, level) for n in names},
               "versions": versions, "code_sha256": code, "machine": machine(),
               "wall_s": time.perf_counter() - start, "case_wall_s": timings,
-              "cases": results, "scene": scene_result, "stage_costs": costs, "claims": claims_table(results), "claims_listed": [c.id for c in CLAIMS],
+              "cases": results, "scene": scene_result, "stage_costs": costs, "render_sweeps": sweeps,
+              "claims": claims_table({**results, **({"render_sweeps": sweeps} if sweeps else {})}), "claims_listed": [c.id for c in CLAIMS],
               "not_covered": NOT_COVERED}
     report = finite_json(report)
     write_json(out / "report.json", report)
@@ -213,7 +224,7 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
 
 
 NOT_COVERED = [
-    "rendering sweeps (light samples, estimators, SSS, supersampling; FLIP against high-sample references)",
+    "rendering against Mitsuba 3 for the rough-plastic material (benchmarks/plastic_vs_mitsuba.py has it)",
     "the user's own scene against a reference on a refined mesh (it is measured on the scene's own mesh)",
     "pyvista pictures of the error field on the deformed mesh",
     "quadratic (10-node) tetrahedra and mesh-converged references at several mesh levels",

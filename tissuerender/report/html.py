@@ -243,6 +243,51 @@ def stage_section(costs: dict, machine: dict) -> str:
     return "\n".join(parts)
 
 
+FAMILY_MARKERS = {"uniform sampling": "o", "adaptive sampling": "s", "importance sampling": "D",
+                  "ratio estimator": "^", "penumbra re-shading": "v", "reflection cone": "P", "SSS off": "X",
+                  "no supersampling": "x"}
+
+
+def render_sweep_png(scene: dict) -> bytes:
+    """FLIP against seconds per frame for one scene's rendering sweep, one marker per option family."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=80)
+    points = scene["points"]
+    for family, marker in FAMILY_MARKERS.items():
+        mine = [p for p in points if p["family"] == family and p["flip"] > 0.0]
+        if mine:
+            ax.scatter([p["seconds"] for p in mine], [p["flip"] for p in mine], marker=marker, label=family, alpha=0.8)
+    front = [points[i] for i in scene["pareto"]]
+    ax.plot([p["seconds"] for p in front], [p["flip"] for p in front], "k-", lw=1.2, zorder=0, label="Pareto front")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("render time per frame [s]")
+    ax.set_ylabel("mean FLIP against the reference [-]")
+    ax.set_title(f"{scene['scene']} at {scene['resolution'][0]}x{scene['resolution'][1]}", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    return _png(fig)
+
+
+def render_sweeps_section(sweeps: dict) -> str:
+    cached = " <em>(cached)</em>" if sweeps.get("cached") else ""
+    parts = [f'<h2 id="render-sweeps">Rendering: what each option buys and costs{cached}</h2>',
+             "<p>Frame 1 of each scene, every setting at 2x2 supersampling unless marked 1x1, against a uniform, "
+             "high-sample, 2x2, Monte Carlo reference of the same frame; FLIP of the tone-mapped images and relative "
+             "RMSE of the HDR against seconds per frame (render_hdr only). See docs/report.md.</p>"]
+    for scene in sweeps["scenes"]:
+        cost = scene["painted_cost"]
+        parts.append(f"<h3>{html.escape(scene['scene'])}</h3>")
+        parts.append(_img(render_sweep_png(scene), "render-sweep", f"FLIP against time, {scene['scene']}"))
+        parts.append(f"<p>Reference: {html.escape(scene['reference']['kind'])} ({_num(scene['reference']['seconds'])} s). "
+                     f"Painted against adaptive sampling at {cost['samples']} samples: {_num(cost['importance_s'])} s "
+                     f"against {_num(cost['adaptive_s'])} s ({100 * cost['extra_fraction']:+.1f} %).</p>")
+        parts.append(_table(["setting", "option", "FLIP", "relative RMSE", "seconds", "Pareto"],
+                            [[html.escape(p["label"]), html.escape(p["family"]), _num(p["flip"]), _num(p["rel_rmse"]),
+                              _num(p["seconds"]), "&#9679;" if i in scene["pareto"] else ""]
+                             for i, p in enumerate(scene["points"])]))
+    return "\n".join(parts)
+
+
 def render_html(report: dict) -> str:
     cases = report["cases"]
     claims = _table(
@@ -254,6 +299,8 @@ def render_html(report: dict) -> str:
     machine = report["machine"]
     versions = ", ".join(f"{k} {v}" for k, v in report["versions"].items())
     body = "\n".join(_case_section(case) for case in cases.values())
+    if report.get("render_sweeps"):
+        body += "\n" + render_sweeps_section(report["render_sweeps"])
     if report.get("stage_costs"):
         body += "\n" + stage_section(report["stage_costs"], report["machine"])
     if report.get("scene"):
