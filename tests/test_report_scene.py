@@ -141,7 +141,8 @@ def test_scene_section_in_html_and_json_and_a_rerun_reuses_both_parts(scene_repo
 
 
 def test_cheapest_says_none_when_no_setting_is_within_the_budget():
-    points = [{"label": "a", "e": 0.5, "t": 1.0}, {"label": "b", "e": 0.2, "t": 2.0}, {"label": "c", "e": None, "t": 0.1}]
+    points = [{"label": "a", "e": 0.5, "t": 1.0}, {"label": "b", "e": 0.2, "t": 2.0},
+              {"label": "c", "e": None, "t": 0.1}]
     assert cheapest(points, {"e": 0.1}, "t")["setting"] is None
     assert cheapest(points, {"e": 0.3}, "t")["setting"] == "b"
     assert cheapest(points, {"e": 0.5}, "t")["setting"] == "a"

@@ -1,6 +1,6 @@
 """The accuracy report's per-stage cost of a frame (issue 17, Qian Fig. 7.7 spirit): every shipped scene is
-rendered through the pipeline at 48 pixels wide for two frames (or its one) ("tiny" level, no warm-up), and its row lists
-exactly the stages its plan runs, each timed or named as timed inside another, with the figure embedded."""
+rendered through the pipeline at 48 pixels wide for two frames (or its one; "tiny" level, no warm-up), and its
+row lists exactly the stages its plan runs, each timed or named as timed inside another, with the figure embedded."""
 from __future__ import annotations
 
 import pytest

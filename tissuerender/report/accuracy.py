@@ -214,7 +214,8 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
               "versions": versions, "code_sha256": code, "machine": machine(),
               "wall_s": time.perf_counter() - start, "case_wall_s": timings,
               "cases": results, "scene": scene_result, "stage_costs": costs, "render_sweeps": sweeps,
-              "claims": claims_table({**results, **({"render_sweeps": sweeps} if sweeps else {})}), "claims_listed": [c.id for c in CLAIMS],
+              "claims": claims_table({**results, **({"render_sweeps": sweeps} if sweeps else {})}),
+              "claims_listed": [c.id for c in CLAIMS],
               "not_covered": NOT_COVERED}
     report = finite_json(report)
     write_json(out / "report.json", report)

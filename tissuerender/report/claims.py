@@ -1,9 +1,10 @@
-"""The theses' quantitative claims that the report's simulation cases can check, typed in once with
-their source, and the verdict each gets from a report's measures.
+"""The theses' quantitative claims that the report's cases and rendering sweeps can check, typed in once
+with their source, and the verdict each gets from a report's measures.
 
 The values are Zhang (2017), *Real-time simulation of soft tissue deformation for surgical simulation*,
-PhD thesis, RMIT University, copied from its text (the section and figure are given per claim). Nothing
-else in the report is typed in by hand: "ours" is always a measure of the run (``cases.py``).
+PhD thesis, RMIT University, copied from its text (the section and figure are given per claim), and Qian's
+painted-sampling cost (§6.3.2). Nothing else in the report is typed in by hand: "ours" is always a measure
+of the run (``cases.py``, ``render_sweeps.py``).
 
 Verdict rules (ours, since the thesis states no tolerance; written next to each claim):
 
@@ -22,7 +23,6 @@ import math
 from dataclasses import asdict, dataclass
 
 THESIS = "Zhang (2017), PhD thesis, RMIT University"
-QIAN = "Qian, PhD thesis (surgical-scene rendering; docs/renderer.md)"
 I7_4770 = "Intel Core i7-4770 3.40 GHz, C++ (Zhang §5.3.6)"
 I7_5500U = "Intel Core i7-5500U 2.40 GHz, C++ (Zhang §4.2.2.4)"
 

@@ -199,8 +199,8 @@ def scene_section(scene: dict) -> str:
     parts.append(f"<p><b>Cheapest within the budget:</b> {html.escape(ren['cheapest']['text'])}.</p>")
     parts.append(_table(["setting", "light samples", "supersampling", "FLIP", "relative RMSE", "seconds / frame",
                          "Pareto"],
-                        [[html.escape(p["label"]), p["samples"], p["supersampling"], _num(p["flip"]), _num(p["rel_rmse"]),
-                          _num(p["seconds"]), "&#9679;" if i in ren["pareto"] else ""]
+                        [[html.escape(p["label"]), p["samples"], p["supersampling"], _num(p["flip"]),
+                          _num(p["rel_rmse"]), _num(p["seconds"]), "&#9679;" if i in ren["pareto"] else ""]
                          for i, p in enumerate(ren["points"])]))
     return "\n".join(parts)
 

@@ -6,8 +6,9 @@ estimator, supersampling, effects), timed, and its error against a high-sample r
   effect would add its own).
 - **Relative RMSE** of the linear HDR: ``sqrt(mean((hdr - ref)^2)) / sqrt(mean(ref^2))``.
 - **Seconds per frame**: ``time.perf_counter`` around ``pipeline.render_hdr`` (raster, BVH, shadows,
-  thickness, shading) after an untimed warm-up render of the same variant, which compiles (or loads) every numba
-  kernel it calls. One timed render: a shared machine varies by some tens of per cent.
+  thickness, shading) after an untimed warm-up render of the first variant with each ``kernel_key`` (sampling,
+  estimator, cone, penumbra, effects), which compiles (or loads) every numba kernel it calls. One timed render:
+  a shared machine varies by some tens of per cent.
 
 Every variant renders with the same seed, hence the same sample pattern, as ``benchmarks/render_convergence.py``.
 """
@@ -46,12 +47,23 @@ def scaled_resolution(scene: Scene, max_width: int | None) -> list[int]:
     return [max_width, max(8, round(h * max_width / w))]
 
 
-def render_timed(scene: Scene, world=None, warm: bool = True) -> dict:
+def kernel_key(scene: Scene) -> tuple:
+    """What selects the renderer's compiled code paths: a variant with a new key gets a warm-up render."""
+    lt, e = scene.light, scene.effects
+    return (lt.sampling, lt.estimator, lt.reflection_cone, lt.penumbra_samples > 0, lt.pattern, e.shadows, e.sss,
+            e.sss_thickness, e.ao, e.mucus_reflection, scene.output.supersampling > 1)
+
+
+def render_timed(scene: Scene, world=None, warm: bool | set = True) -> dict:
     """Frame 1 (t = 0) of ``scene``: linear HDR, tone-mapped LDR and the seconds ``render_hdr`` took (after a
-    warm-up render when ``warm``). ``world`` is reused when given (its bodies at rest or as left)."""
+    warm-up render when ``warm`` is True, or when it is a set of ``kernel_key``s not holding this scene's, which
+    is then added). ``world`` is reused when given (its bodies at rest or as left)."""
     plan = make_plan(scene)
     if world is None:
         world = build_world(scene, plan, StageRecorder())
+    if isinstance(warm, set):
+        key = kernel_key(scene)
+        warm, _ = key not in warm, warm.add(key)
     if warm:
         render_hdr(world, scene, plan, StageRecorder(), 0.0, scene.seed)
     start = time.perf_counter()

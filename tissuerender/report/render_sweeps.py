@@ -88,9 +88,10 @@ def run_scene(name: str, sweep: dict, tick=lambda: None) -> dict:
     base = variant(scene, output={"resolution": scaled_resolution(scene, sweep["max_width"]), "supersampling": 2})
     reference = render_timed(variant(base, light={"sampling": "uniform", "samples": sweep["reference_samples"],
                                                   "estimator": "mc", "importance": []}))
-    points = []
+    points, warmed = [], set()
     for s in settings(scene, sweep):
-        frame = render_timed(variant(base, light=s["light"], effects=s.get("effects"), output=s.get("output")))
+        run = variant(base, light=s["light"], effects=s.get("effects"), output=s.get("output"))
+        frame = render_timed(run, warm=warmed)
         point = {k: v for k, v in s.items() if k in ("family", "label", "samples")}
         point["supersampling"] = (s.get("output") or {}).get("supersampling", 2)
         points.append({**point, **compare(reference, frame)})

@@ -122,8 +122,9 @@ def relative_errors(xs: list[np.ndarray], ref: list[np.ndarray], rest: np.ndarra
 def reference_trajectory(scene, frames: int, h: float) -> tuple[list[np.ndarray], float]:
     """The reference integrator (backward Euler, the scene's Newton tolerance) at step ``h``, which divides
     the scene's ``dt``; the wall seconds it took."""
+    reference = scene.simulation.reference.model_copy(update={"mode": "dynamic"})
     ref_scene = variant(scene, simulation={"integrator": "reference", "dt": h, "substeps": 1, "iterations": 1,
-                                           "reference": scene.simulation.reference.model_copy(update={"mode": "dynamic"})})
+                                           "reference": reference})
     start = time.perf_counter()
     xs, _, failure = trajectory(ref_scene, frames)
     if failure is not None:
@@ -225,10 +226,10 @@ def run_rendering(scene, sweep: dict, tick=lambda: None) -> dict:
     reference = render_timed(variant(small, light={"samples": ref_samples, "estimator": "mc"},
                                      output={"supersampling": ref_ss}))
     tick()
-    points = []
+    points, warmed = [], set()
     for setting in render_settings(scene, sweep):
         frame = render_timed(variant(small, light={"samples": setting["samples"]},
-                                     output={"supersampling": setting["supersampling"]}))
+                                     output={"supersampling": setting["supersampling"]}), warm=warmed)
         points.append({**setting, **compare(reference, frame)})
         tick()
     return {"resolution": resolution, "frame": 1,
