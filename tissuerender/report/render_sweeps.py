@@ -31,8 +31,11 @@ import numpy as np
 from tissuerender.report.measure import pareto_front
 from tissuerender.report.render_measure import compare, render_timed, scaled_resolution, variant
 from tissuerender.report.stage_costs import SCENES_DIR
+from tissuerender.plan import make_plan
 from tissuerender.scene import load_scene
 from tissuerender.scene.schema import ImportanceStroke
+from tissuerender.stages import StageRecorder
+from tissuerender.world import build_world
 
 SWEEP_SCENES = ("kidney_static", "colon_mucosa", "liver_probe")
 RENDER_SWEEPS = {
@@ -86,24 +89,25 @@ def settings(scene, sweep: dict) -> list[dict]:
 def run_scene(name: str, sweep: dict, tick=lambda: None) -> dict:
     scene = load_scene(SCENES_DIR / f"{name}.toml")
     base = variant(scene, output={"resolution": scaled_resolution(scene, sweep["max_width"]), "supersampling": 2})
+    world = build_world(base, make_plan(base), StageRecorder())  # at rest: every variant renders it
     reference = render_timed(variant(base, light={"sampling": "uniform", "samples": sweep["reference_samples"],
-                                                  "estimator": "mc", "importance": []}))
+                                                  "estimator": "mc", "importance": []}), world)
     points, warmed = [], set()
     for s in settings(scene, sweep):
         run = variant(base, light=s["light"], effects=s.get("effects"), output=s.get("output"))
-        frame = render_timed(run, warm=warmed)
+        frame = render_timed(run, world, warm=warmed)
         point = {k: v for k, v in s.items() if k in ("family", "label", "samples")}
         point["supersampling"] = (s.get("output") or {}).get("supersampling", 2)
         points.append({**point, **compare(reference, frame)})
         tick()
-    cost = painted_cost(base, scene, sweep["cost_repeats"])
+    cost = painted_cost(base, scene, sweep["cost_repeats"], world)
     return {"scene": name, "resolution": base.output.resolution, "frame": 1,
             "reference": {"kind": f"uniform, {sweep['reference_samples']} samples, 2x2 supersampling, Monte Carlo",
                           "seconds": reference["seconds"]},
             "points": points, "pareto": pareto_front(points, "flip", "seconds"), "painted_cost": cost}
 
 
-def painted_cost(base, scene, repeats: int) -> dict:
+def painted_cost(base, scene, repeats: int, world=None) -> dict:
     """Frame time of painted (importance) sampling against adaptive m(d), at the scene's sample count."""
     m = scene.light.samples
     times = {}
@@ -111,7 +115,7 @@ def painted_cost(base, scene, repeats: int) -> dict:
         light = {"sampling": sampling, "samples": m, "importance": [ImportanceStroke(**painted_stroke(scene))]
                  if sampling == "importance" else []}
         run = variant(base, light=light)
-        times[sampling] = statistics.median(render_timed(run, warm=(k == 0))["seconds"] for k in range(repeats))
+        times[sampling] = statistics.median(render_timed(run, world, warm=(k == 0))["seconds"] for k in range(repeats))
     return {"samples": m, "adaptive_s": times["adaptive"], "importance_s": times["importance"],
             "extra_fraction": times["importance"] / times["adaptive"] - 1.0}
 

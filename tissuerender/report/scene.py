@@ -223,13 +223,14 @@ def run_rendering(scene, sweep: dict, tick=lambda: None) -> dict:
     small = variant(scene, output={"resolution": resolution})
     ref_samples = min(4096, REFERENCE_SAMPLES * scene.light.samples)
     ref_ss = reference_supersampling(scene)
+    world = build_world(small, make_plan(small), StageRecorder())  # at rest: every variant renders it
     reference = render_timed(variant(small, light={"samples": ref_samples, "estimator": "mc"},
-                                     output={"supersampling": ref_ss}))
+                                     output={"supersampling": ref_ss}), world)
     tick()
     points, warmed = [], set()
     for setting in render_settings(scene, sweep):
         frame = render_timed(variant(small, light={"samples": setting["samples"]},
-                                     output={"supersampling": setting["supersampling"]}), warm=warmed)
+                                     output={"supersampling": setting["supersampling"]}), world, warm=warmed)
         points.append({**setting, **compare(reference, frame)})
         tick()
     return {"resolution": resolution, "frame": 1,
