@@ -135,6 +135,7 @@ def test_scene_section_in_html_and_json_and_a_rerun_reuses_both_parts(scene_repo
     assert 'id="scene"' in text and 'data-figure="scene-simulation"' in text and 'data-figure="scene-rendering"' in text
     assert json.loads((out / "report.json").read_text())["scene"] == report["scene"]
     assert report["cases"] == {}  # a scene's report runs no theses' case unless --cases names one
+    assert 'id="claims"' not in text  # so no claims table of "not comparable" rows
     again = accuracy.run_report(out, scene=load_scene(scene_path), budget=BUDGET, level="tiny")
     assert again["scene"]["simulation"]["cached"] and again["scene"]["rendering"]["cached"]
     assert again["scene"]["simulation"]["points"] == report["scene"]["simulation"]["points"]
@@ -163,3 +164,9 @@ def test_bad_budget_exits_2_with_one_line(scene_path, tmp_path, capsys, budget, 
     err = capsys.readouterr().err
     assert status == 2 and expected in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()  # refused before anything ran or was written
+
+
+def test_budget_without_a_scene_exits_2(tmp_path, capsys):
+    status = cli.main(["report", "accuracy", "-o", str(tmp_path / "out"), "--budget", "sim=1%"])
+    err = capsys.readouterr().err
+    assert status == 2 and "--budget: applies to a scene's report" in err and not (tmp_path / "out").exists()

@@ -250,12 +250,14 @@ def _cmd_accuracy(args) -> int:
             done = report["scene"][part]
             print(f"{scene.name} {part}: " + (f"not measured: {done['skipped']}" if "skipped" in done else
                                               f"cheapest within the budget: {done['cheapest']['text']}"))
-    if not args.quiet:
+    if not args.quiet and (report["cases"] or report["render_sweeps"]):
         verdicts = [row["verdict"] for row in report["claims"]]
         cached = sum(1 for c in report["cases"].values() if c["cached"])
         print(f"wrote {out / 'report.html'} and report.json: {len(report['cases'])} case(s) ({cached} cached), "
               f"claims: {verdicts.count('reproduced')} reproduced, {verdicts.count('not reproduced')} not "
               f"reproduced, {verdicts.count('not comparable')} not comparable")
+    elif not args.quiet:
+        print(f"wrote {out / 'report.html'} and report.json")
     return 0
 
 

@@ -296,6 +296,10 @@ def render_html(report: dict) -> str:
           html.escape(c["statement"]), _num(c["thesis_value"]) + (f" {c['unit']}" if c["thesis_value"] is not None else ""),
           html.escape(c["hardware"]), _num(c["ours"]), f'<b class="{c["verdict"].replace(" ", "-")}">{c["verdict"]}</b>',
           html.escape(c["reason"])] for c in report["claims"]], "claims")
+    # a scene's own report with no theses' case or sweep run has nothing to compare: the table would be all
+    # "not comparable"
+    compared = report["cases"] or report.get("render_sweeps")
+    claims = f'<h2 id="claims">The thesis\'s claims, side by side</h2>\n{claims}' if compared else ""
     machine = report["machine"]
     versions = ", ".join(f"{k} {v}" for k, v in report["versions"].items())
     body = "\n".join(_case_section(case) for case in cases.values())
@@ -321,7 +325,6 @@ settings and code (marked cached); only the theses' values are typed in, with th
 <p>How to read it: each figure plots, per case, the error of every integrator setting against the wall time it
 takes per simulated second (log-log, lower-left is better); circled points joined by the black line are the
 Pareto front (no other setting is both faster and more accurate). See docs/report.md.</p>
-<h2 id="claims">The thesis's claims, side by side</h2>
 {claims}
 {body}
 <h2 id="not-covered">Not covered by this report yet</h2><ul>{not_covered}</ul>
