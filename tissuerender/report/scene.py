@@ -6,7 +6,8 @@ scene is, and what more (or less) accuracy would cost per frame (issue 17 item 2
 ``substeps`` halved and doubled for every integrator: the step each substep takes, ``dt / substeps``, doubles
 and halves with it), over the scene's first frames. Each is measured against the reference integrator
 (backward Euler solved by Newton, ``sim.integrators.reference``, the scene's ``[simulation.reference]``
-tolerance) **on the scene's mesh** at the step ``h = dt / substeps / 4`` (a quarter of the scene's own substep),
+tolerance) **on the scene's mesh** at the step ``h = dt / substeps / 4`` (a quarter of the scene's own substep;
+a half with ``--quick``, which also measures 4 frames, not all),
 after a convergence check at ``4h``, ``2h``, ``h``: the reference's own time-step error is about
 ``|x_2h - x_h|`` (first order), and it must fall under refinement. The error of a setting is the largest,
 over the frame times ``(k - 1) / fps`` after the first, of the relative L2 displacement error over every
@@ -42,14 +43,15 @@ ITERATING = ("xpbd", "ebm", "cnn_chainmail")  # the integrators whose [simulatio
 REFERENCE_SAMPLES = 16  # the render reference's light samples per the scene's (at most 4096, the schema's limit)
 
 # per level: frames simulated (None: all of the scene's), the factors applied to iterations and substeps, the
-# render's largest width (None: the scene's) and the factors applied to the light samples
+# render's largest width (None: the scene's) and the factors applied to the light samples; the reference's step
+# is the scene's substep divided by reference_refinement
 SCENE_SWEEPS = {
     "full": {"frames": None, "factors": [0.25, 0.5, 1.0, 2.0, 4.0], "max_width": None,
-             "sample_factors": [0.25, 0.5, 1.0, 2.0, 4.0], "supersampling": [-1, 1]},
-    "quick": {"frames": 6, "factors": [0.5, 1.0, 2.0], "max_width": 128, "sample_factors": [0.25, 1.0, 2.0],
-              "supersampling": [1]},
+             "sample_factors": [0.25, 0.5, 1.0, 2.0, 4.0], "supersampling": [-1, 1], "reference_refinement": 4},
+    "quick": {"frames": 4, "factors": [0.5, 1.0, 2.0], "max_width": 128, "sample_factors": [0.25, 1.0, 2.0],
+              "supersampling": [1], "reference_refinement": 2},
     "tiny": {"frames": 3, "factors": [0.25, 0.5, 1.0, 2.0], "max_width": 64, "sample_factors": [0.25, 1.0, 4.0],
-             "supersampling": []},
+             "supersampling": [], "reference_refinement": 4},
 }
 
 
@@ -151,9 +153,9 @@ def run_simulation(scene, sweep: dict, tick=lambda: None) -> dict:
     frames = scene.output.frames if sweep["frames"] is None else min(sweep["frames"], scene.output.frames)
     if frames < 2:
         return {"skipped": "the scene has one frame: nothing moves before it"}
-    # the finest step any setting takes is dt / (substeps * the largest factor); the reference takes a quarter of
-    # the scene's own substep, and its convergence is checked at 4h, 2h and h
-    h = sim.dt / sim.substeps / 4.0
+    # the finest step any setting takes is dt / (substeps * the largest factor); the reference takes the scene's
+    # own substep over reference_refinement (full: 4, --quick: 2), and its convergence is checked at 4h, 2h and h
+    h = sim.dt / sim.substeps / sweep["reference_refinement"]
     levels = [4.0 * h, 2.0 * h, h]
     refs, ref_seconds = [], []
     for step in levels:
