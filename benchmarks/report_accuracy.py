@@ -2,9 +2,13 @@
 second (Pareto front marked), the reference's observed convergence order, and the thesis claims' verdicts.
 Runs ``tissuerender report accuracy`` in-process (``tissuerender.report.accuracy.run_report``).
 
-Usage: .venv/bin/python benchmarks/report_accuracy.py [--quick] [-o DIR]
+Also the rendering sweeps (FLIP and seconds per frame per setting), every shipped scene's per-stage frame cost, and
+with ``--scene FILE`` that scene's report instead (its sweeps and the cheapest settings within ``--budget``).
+
+Usage: .venv/bin/python benchmarks/report_accuracy.py [--quick] [-o DIR] [--scene FILE [--budget sim=1%,flip=0.002]]
 (DIR defaults to a fresh temporary folder, so nothing is reused from an earlier run.)
-The last line is one JSON object: {"<case>_<integrator>_<setting>_err": ..., "..._s_per_sim_s": ..., "claims": {...}}.
+The last line is one JSON object: {"<case>_<integrator>_<setting>_err": ..., "..._s_per_sim_s": ..., "claims": {...},
+"render_<scene>_<setting>_flip": ..., "stage_<scene>_frame_s": ..., "scene_<part>_cheapest": ...}.
 """
 from __future__ import annotations
 
@@ -17,16 +21,21 @@ import tempfile
 # benchmarks/postfx.py would shadow the postfx package: keep this folder off the import path
 sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirname(os.path.abspath(__file__))]
 
+from tissuerender import load_scene  # noqa: E402
 from tissuerender.report.accuracy import run_report  # noqa: E402
+from tissuerender.report.scene import parse_budget  # noqa: E402
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the --quick report: coarse meshes, fewer settings")
     parser.add_argument("-o", "--out", default=None, help="report folder (default: a new temporary folder)")
+    parser.add_argument("--scene", default=None, help="a scene file: its own report")
+    parser.add_argument("--budget", default=None, help="with --scene: e.g. sim=1%%,flip=0.002")
     args = parser.parse_args()
     out = args.out or tempfile.mkdtemp(prefix="report_accuracy_")
-    report = run_report(out, quick=args.quick)
+    scene = load_scene(args.scene) if args.scene else None
+    report = run_report(out, quick=args.quick, scene=scene, budget=parse_budget(args.budget))
     result: dict = {"wall_s": round(report["wall_s"], 1)}
     for name, case in report["cases"].items():
         if name == "rates":
@@ -46,6 +55,22 @@ def main() -> None:
             key = f"{name}_{p['integrator']}_{p['setting'].replace(' ', '').replace(',', '_')}"
             result[f"{key}_err"] = None if err is None else float(f"{err:.4g}")
             result[f"{key}_s_per_sim_s"] = float(f"{p['wall_s_per_sim_s']:.4g}")
+    for sweep in (report.get("render_sweeps") or {}).get("scenes", []):
+        print(f"\nrendering sweep {sweep['scene']} {sweep['resolution']} (FLIP, relative RMSE, seconds)")
+        for p in sweep["points"]:
+            print(f"  {p['label']:30s} {p['flip']:9.2e} {p['rel_rmse']:9.2e} {p['seconds']:8.3f}")
+            result[f"render_{sweep['scene']}_{p['label'].replace(' ', '')}_flip"] = float(f"{p['flip']:.4g}")
+        print(f"  painted over adaptive frame time: {100 * sweep['painted_cost']['extra_fraction']:+.1f} %")
+    for row in (report.get("stage_costs") or {}).get("scenes", []):
+        stages = ", ".join(f"{k} {v:.3g}" for k, v in sorted(row["per_frame_s"].items(), key=lambda kv: -kv[1]))
+        print(f"stage costs {row['scene']:16s} {row['frame_s']:.3g} s/frame: {stages}")
+        result[f"stage_{row['scene']}_frame_s"] = float(f"{row['frame_s']:.4g}")
+    if report.get("scene"):
+        for part in ("simulation", "rendering"):
+            done = report["scene"][part]
+            text = done.get("skipped") or done["cheapest"]["text"]
+            print(f"scene {part}: {text}")
+            result[f"scene_{part}_cheapest"] = None if "skipped" in done else done["cheapest"]["setting"]
     print("\nclaims:")
     for row in report["claims"]:
         print(f"  {row['id']:38s} {row['verdict']:15s} {row['reason']}")

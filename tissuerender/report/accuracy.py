@@ -27,8 +27,11 @@ from tissuerender.errors import UserError
 from tissuerender.files import output_folder, write_atomic, write_json
 from tissuerender.manifest import package_versions
 from tissuerender.report import cases as case_runs
+from tissuerender.report import scene as scene_report
+from tissuerender.report import render_sweeps, stage_costs
 from tissuerender.report.claims import CLAIMS, claims_table
 from tissuerender.report.html import render_html
+from tissuerender.scene import load_scene
 
 KIND = "tissuerender.report.accuracy"
 FORMAT = 1  # bump when the stored case layout changes
@@ -52,6 +55,22 @@ def code_hash() -> str:
     """SHA-256 of the source of ``sim/`` and of this package: a stored case is reused only by the same code."""
     h = hashlib.sha256()
     for root in (Path(sim.__file__).parent, Path(__file__).parent):
+        for path in sorted(root.rglob("*.py")):
+            h.update(str(path.relative_to(root.parent)).encode())
+            h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def render_code_hash() -> str:
+    """SHA-256 of the source of every package a render runs (``tissuerender``, ``sim``, ``postfx``,
+    ``materials``): a stored scene sweep or stage cost is reused only by the same code."""
+    import materials
+    import postfx
+    import tissuerender
+
+    h = hashlib.sha256()
+    for package in (tissuerender, sim, postfx, materials):
+        root = Path(package.__file__).parent
         for path in sorted(root.rglob("*.py")):
             h.update(str(path.relative_to(root.parent)).encode())
             h.update(path.read_bytes())
@@ -109,51 +128,104 @@ class _Bar:
             self.progress.stop()
 
 
+def _cached(path: Path, key: dict, compute) -> tuple[dict, bool, float]:
+    """The result stored at ``path`` under ``key``, or ``compute()`` stored there: (result, cached, wall s)."""
+    stored = _stored(path, key)
+    if stored is not None:
+        return stored["result"], True, stored["wall_s"]
+    t0 = time.perf_counter()
+    result = finite_json(compute())
+    wall = time.perf_counter() - t0
+    write_json(path, {"kind": KIND, "key": key, "wall_s": wall, "result": result})
+    return result, False, wall
+
+
 def run_report(out, quick: bool = False, cases: list[str] | None = None, level: str | None = None,
-               progress: bool = False, workers: int | None = None, scheduler: str | None = None,
-               client=None) -> dict:
+               progress: bool = False, scene=None, budget: dict | None = None, stages: bool | None = None,
+               workers: int | None = None, scheduler: str | None = None, client=None) -> dict:
     """Run (or reuse) every case, write the JSON and HTML; returns the report dict. ``level`` is the sweep
-    size: "full", "quick" (``--quick``) or "tiny" (the test suite's); it defaults from ``quick``. With
-    ``workers`` / ``scheduler`` / ``client`` the cases to compute run as Dask tasks (docs/dask.md)."""
+    size: "full", "quick" (``--quick``) or "tiny" (the test suite's); it defaults from ``quick``. With a
+    ``scene`` (``scene.py``) the report is that scene's, and runs the cases only when ``cases`` names them.
+    ``stages``: the per-stage costs of the shipped scenes (``stage_costs.py``) and the rendering sweeps
+    (``render_sweeps.py``); by default with the default cases. With ``workers`` / ``scheduler`` / ``client``
+    the cases to compute run as Dask tasks (docs/dask.md)."""
     out = output_folder(out)
     level = level or ("quick" if quick else "full")
-    names = cases if cases is not None else parse_cases(None, quick)
+    names = cases if cases is not None else [] if scene is not None else parse_cases(None, quick)
     versions, code = package_versions(), code_hash()
+    render_code = render_code_hash() if scene is not None or stages is not False else None
     results, timings, todo = {}, {}, {}
     units = {name: case_runs.work_units(name, case_runs.sweep_for(name, level)) for name in names}
-    bar = _Bar(progress, sum(units.values()))
+    scene_sweep = scene_report.SCENE_SWEEPS[level]
+    stages = (scene is None and cases is None) if stages is None else stages
+    stage_sweep = stage_costs.STAGE_SWEEPS[level]
+    shipped = stage_costs.shipped_scenes() if stages else []
+    budget = scene_report.parse_budget(None) if budget is None else budget
+    render_sweep = render_sweeps.RENDER_SWEEPS[level]
+    render_units = render_sweeps.work_units(render_sweep) if stages else 0
+    bar = _Bar(progress, sum(units.values()) + (scene_report.work_units(scene, scene_sweep) if scene else 0)
+               + len(shipped) + render_units)
     start = time.perf_counter()
+    scene_result = costs = sweeps = None
     try:
+        if scene is not None:
+            bar.show(scene.name)
+
+            def part(name, compute):
+                key = finite_json({"scene": scene.sha256, "part": name, "sweep": scene_sweep, "versions": versions,
+                                   "code": render_code, "format": FORMAT})
+                result, cached, wall = _cached(out / "cases" / f"scene_{scene.name}_{name}.json", key, compute)
+                if cached:
+                    bar.advance(scene_report.part_units(scene, scene_sweep, name))
+                return {**result, "cached": cached, "computed_wall_s": wall}
+
+            scene_result = scene_report.run_scene_parts(scene, budget, scene_sweep, part, bar.advance)
         for name in names:
             bar.show(name)
             sweep = case_runs.sweep_for(name, level)
             key = finite_json({"case": name, "sweep": sweep, "versions": versions, "code": code, "format": FORMAT})
             path = out / "cases" / f"{name}.json"
             stored = _stored(path, key)
-            if stored is not None:
-                results[name] = {**stored["result"], "cached": True, "computed_wall_s": stored["wall_s"]}
-                bar.advance(units[name])
-            elif workers is not None or scheduler is not None or client is not None:
+            if stored is None and (workers is not None or scheduler is not None or client is not None):
                 todo[name] = (sweep, key, path)  # run below, as Dask tasks
-            else:
-                t0 = time.perf_counter()
-                result = finite_json(case_runs.run_case(name, sweep, bar.advance))
-                wall = time.perf_counter() - t0
-                write_json(path, {"kind": KIND, "key": key, "wall_s": wall, "result": result})
-                results[name] = {**result, "cached": False, "computed_wall_s": wall}
+                continue
+            result, cached, wall = _cached(path, key, lambda: case_runs.run_case(name, sweep, bar.advance))
+            if cached:
+                bar.advance(units[name])
+            results[name] = {**result, "cached": cached, "computed_wall_s": wall}
         if todo:
             _run_cases_on_dask(todo, results, units, bar, workers, scheduler, client)
         results = {name: results[name] for name in names}
         timings = {name: results[name]["computed_wall_s"] for name in names}
+        if stages:
+            bar.show("per-stage costs")
+            key = finite_json({"scenes": {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in shipped},
+                               "sweep": stage_sweep, "versions": versions, "code": render_code, "format": FORMAT,
+                               "numba_threads": numba.get_num_threads()})
+            result, cached, wall = _cached(out / "cases" / "stage_costs.json", key,
+                                           lambda: stage_costs.run_stage_costs(stage_sweep, shipped, bar.advance))
+            if cached:
+                bar.advance(len(shipped))
+            costs = {**result, "cached": cached, "computed_wall_s": wall}
+            bar.show("rendering sweeps")
+            key = {**key, "sweep": render_sweep, "part": "render_sweeps"}
+            result, cached, wall = _cached(out / "cases" / "render_sweeps.json", key,
+                                           lambda: render_sweeps.run_render_sweeps(render_sweep, tick=bar.advance))
+            if cached:
+                bar.advance(render_units)
+            sweeps = {**result, "cached": cached, "computed_wall_s": wall}
     finally:
         bar.close()
     report = {"kind": KIND, "format": FORMAT, "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-              "command": "tissuerender report accuracy" + (" --quick" if quick else "")
+              "command": "tissuerender report accuracy" + (f" {scene.path}" if scene is not None else "")
+              + (" --quick" if quick else "")
               + (f" --cases {','.join(names)}" if cases is not None else ""),
               "level": level, "sweeps": {n: case_runs.sweep_for(n, level) for n in names},
               "versions": versions, "code_sha256": code, "machine": machine(),
               "wall_s": time.perf_counter() - start, "case_wall_s": timings,
-              "cases": results, "claims": claims_table(results), "claims_listed": [c.id for c in CLAIMS],
+              "cases": results, "scene": scene_result, "stage_costs": costs, "render_sweeps": sweeps,
+              "claims": claims_table({**results, **({"render_sweeps": sweeps} if sweeps else {})}),
+              "claims_listed": [c.id for c in CLAIMS],
               "not_covered": NOT_COVERED}
     report = finite_json(report)
     write_json(out / "report.json", report)
@@ -191,8 +263,8 @@ def _run_cases_on_dask(todo: dict, results: dict, units: dict, bar, workers, sch
 
 
 NOT_COVERED = [
-    "rendering sweeps (light samples, estimators, SSS, supersampling; FLIP against high-sample references)",
-    "the user's own scene (tissuerender report accuracy SCENE --budget ...)",
+    "rendering against Mitsuba 3 for the rough-plastic material (benchmarks/plastic_vs_mitsuba.py has it)",
+    "the user's own scene against a reference on a refined mesh (it is measured on the scene's own mesh)",
     "pyvista pictures of the error field on the deformed mesh",
     "quadratic (10-node) tetrahedra and mesh-converged references at several mesh levels",
     "the viscoelastic cube, the cantilever under gravity, Qian's claims (XPBD 1e-4 vs Newton 1e-5, "
@@ -202,15 +274,27 @@ NOT_COVERED = [
 
 def _cmd_accuracy(args) -> int:
     names = parse_cases(args.cases, args.quick)
+    budget = scene_report.parse_budget(args.budget)
+    if args.budget is not None and args.scene is None:
+        raise UserError("--budget: applies to a scene's report; name the scene: tissuerender report accuracy "
+                        "SCENE -o DIR --budget ...")
+    scene = load_scene(args.scene) if args.scene is not None else None
     out = output_folder(args.out)
     report = run_report(out, quick=args.quick, cases=names if args.cases else None, progress=not args.quiet,
-                        workers=args.workers, scheduler=args.scheduler)
-    if not args.quiet:
+                        scene=scene, budget=budget, workers=args.workers, scheduler=args.scheduler)
+    if not args.quiet and scene is not None:
+        for part in ("simulation", "rendering"):
+            done = report["scene"][part]
+            print(f"{scene.name} {part}: " + (f"not measured: {done['skipped']}" if "skipped" in done else
+                                              f"cheapest within the budget: {done['cheapest']['text']}"))
+    if not args.quiet and (report["cases"] or report["render_sweeps"]):
         verdicts = [row["verdict"] for row in report["claims"]]
         cached = sum(1 for c in report["cases"].values() if c["cached"])
         print(f"wrote {out / 'report.html'} and report.json: {len(report['cases'])} case(s) ({cached} cached), "
               f"claims: {verdicts.count('reproduced')} reproduced, {verdicts.count('not reproduced')} not "
               f"reproduced, {verdicts.count('not comparable')} not comparable")
+    elif not args.quiet:
+        print(f"wrote {out / 'report.html'} and report.json")
     return 0
 
 
@@ -218,7 +302,9 @@ def add_cli(subparsers) -> None:
     report = subparsers.add_parser("report", help="accuracy and cost reports")
     sub = report.add_subparsers(dest="report_command", required=True)
     p = sub.add_parser("accuracy", help="error against converged references versus wall time, and the theses' claims")
+    p.add_argument("scene", nargs="?", default=None, help="a scene file: report on its own settings (docs/report.md)")
     p.add_argument("-o", "--out", required=True, help="output folder (report.html, report.json, cases/)")
+    p.add_argument("--budget", default=None, help="with a scene: error budget, e.g. sim=1%%,flip=0.002[,rmse=0.05]")
     p.add_argument("--quick", action="store_true", help="coarser meshes, fewer settings and cases (about 2 minutes)")
     p.add_argument("--cases", default=None, help=f"comma-separated subset of {', '.join(case_runs.CASES)}")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")

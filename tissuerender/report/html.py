@@ -134,6 +134,160 @@ def _case_section(case: dict) -> str:
     return "\n".join(parts)
 
 
+def sweep_png(points: list[dict], pareto: list[int], error_key: str, time_key: str, xlabel: str, ylabel: str,
+              title: str) -> bytes:
+    """One sweep's error against its cost per frame, the scene's own setting starred, the Pareto front joined."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=80)
+    ok = [p for p in points if p.get(error_key) is not None and p[error_key] > 0.0]
+    ax.scatter([p[time_key] for p in ok], [p[error_key] for p in ok], color="tab:blue", label="settings")
+    for p in ok:
+        ax.annotate(p["label"], (p[time_key], p[error_key]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+    mine = [p for p in ok if p.get("scene")]
+    ax.scatter([p[time_key] for p in mine], [p[error_key] for p in mine], marker="*", s=200, color="tab:red",
+               zorder=4, label="the scene's")
+    front = [points[i] for i in pareto if points[i] in ok]
+    ax.plot([p[time_key] for p in front], [p[error_key] for p in front], "k-", lw=1.2, zorder=0, label="Pareto front")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    return _png(fig)
+
+
+def _img(png: bytes, figure: str, alt: str) -> str:
+    data = base64.b64encode(png).decode("ascii")
+    return f'<img class="figure" data-figure="{figure}" alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+
+
+def scene_section(scene: dict) -> str:
+    """The user's scene (``scene.py``): both sweeps, the reference, and the cheapest setting within the budget."""
+    budget = ", ".join(f"{k} {_num(v)}" for k, v in scene["budget"].items())
+    parts = [f'<h2 id="scene">Your scene: {html.escape(scene["name"])} ({html.escape(scene["path"])})</h2>',
+             f"<p>Budget: {html.escape(budget)} (sim: relative L2 displacement error, largest over the frames; "
+             "flip: mean FLIP; rmse: relative RMSE of the HDR).</p>"]
+    sim = scene["simulation"]
+    cached = " <em>(cached)</em>" if sim.get("cached") else ""
+    if "skipped" in sim:
+        parts.append(f"<h3>Simulation{cached}</h3><p>Not measured: {html.escape(sim['skipped'])}.</p>")
+    else:
+        ref = sim["reference"]
+        parts.append(f"<h3>Simulation: {html.escape(sim['integrator'])}{cached}</h3>")
+        parts.append(_img(sweep_png(sim["points"], sim["pareto"], "rel_l2", "wall_s_per_frame",
+                                    "simulation wall time per frame [s]", "relative L2 displacement error [-]",
+                                    f"{scene['name']}: simulation, {sim['frames']} frames"), "scene-simulation",
+                          "simulation error against time per frame"))
+        parts.append(f"<p>Reference: {html.escape(ref['kind'])}. Its own convergence ({html.escape(ref['what'])}): "
+                     f"{', '.join(_num(d) for d in ref['differences'])} at steps "
+                     f"{', '.join(_num(h) for h in ref['levels_s'])} s ({'falls' if ref['falls'] else 'does NOT fall'}"
+                     f" under refinement).</p>")
+        parts.append(f"<p><b>Cheapest within the budget:</b> {html.escape(sim['cheapest']['text'])}.</p>")
+        parts.append(_table(["setting", "substeps", "iterations", "error (max over frames)", "wall [s] / frame",
+                             "Pareto", "failure"],
+                            [[html.escape(p["label"]), p["substeps"], p["iterations"], _num(p["rel_l2"]),
+                              _num(p["wall_s_per_frame"]), "&#9679;" if i in sim["pareto"] else "",
+                              html.escape(p["diverged"] or "")] for i, p in enumerate(sim["points"])]))
+    ren = scene["rendering"]
+    cached = " <em>(cached)</em>" if ren.get("cached") else ""
+    parts.append(f"<h3>Rendering, frame {ren['frame']} at {ren['resolution'][0]}x{ren['resolution'][1]}{cached}</h3>")
+    parts.append(_img(sweep_png(ren["points"], ren["pareto"], "flip", "seconds", "render time per frame [s]",
+                                "mean FLIP [-]", f"{scene['name']}: rendering"), "scene-rendering",
+                      "FLIP against render time per frame"))
+    parts.append(f"<p>Reference: {html.escape(ren['reference']['kind'])} ({_num(ren['reference']['seconds'])} s).</p>")
+    parts.append(f"<p><b>Cheapest within the budget:</b> {html.escape(ren['cheapest']['text'])}.</p>")
+    parts.append(_table(["setting", "light samples", "supersampling", "FLIP", "relative RMSE", "seconds / frame",
+                         "Pareto"],
+                        [[html.escape(p["label"]), p["samples"], p["supersampling"], _num(p["flip"]),
+                          _num(p["rel_rmse"]), _num(p["seconds"]), "&#9679;" if i in ren["pareto"] else ""]
+                         for i, p in enumerate(ren["points"])]))
+    return "\n".join(parts)
+
+
+def stages_png(costs: dict) -> bytes:
+    """Qian Fig. 7.7's spirit: one stacked bar per shipped scene, the seconds per frame of each stage."""
+    rows = costs["scenes"]
+    stages = list(dict.fromkeys(name for r in rows for name in r["per_frame_s"]))
+    fig, ax = plt.subplots(figsize=(7.2, 4.4), dpi=80)
+    bottom = [0.0] * len(rows)
+    cmap = plt.get_cmap("tab20")
+    for k, name in enumerate(stages):
+        heights = [r["per_frame_s"].get(name, 0.0) for r in rows]
+        ax.bar([r["scene"] for r in rows], heights, bottom=bottom, label=name, color=cmap(k % 20))
+        bottom = [b + h for b, h in zip(bottom, heights)]
+    ax.set_ylabel("seconds per frame")
+    ax.set_title(f"per-stage cost of a frame ({costs['numba_threads']} numba thread(s))", fontsize=10)
+    ax.tick_params(axis="x", labelsize=8)
+    ax.legend(fontsize=6, ncol=2, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return _png(fig)
+
+
+def stage_section(costs: dict, machine: dict) -> str:
+    cached = " <em>(cached)</em>" if costs.get("cached") else ""
+    parts = [f'<h2 id="stage-costs">Per-stage cost of a frame, every shipped scene{cached}</h2>',
+             f"<p>{html.escape(str(machine['processor'] or machine['machine']))}, {machine['cpus']} cpus, "
+             f"{costs['numba_threads']} numba thread(s); each scene's first {costs['sweep']['frames']} frames through "
+             "the pipeline, at the resolution given below, after an untimed run of the same frames"
+             + ("" if costs["sweep"]["warm"] else " (skipped at this level: the figures include numba's cache loading)")
+             + ". Setup (meshing, loading surfaces) is listed apart. Stages with no timing of their own are part of "
+             "the stage named.</p>", _img(stages_png(costs), "stage-costs", "per-stage cost of a frame")]
+    stages = list(dict.fromkeys(name for r in costs["scenes"] for name in r["per_frame_s"]))
+    rows = []
+    for r in costs["scenes"]:
+        inside = "; ".join(f"{k} in {v}" for k, v in r["timed_inside"].items())
+        rows.append([html.escape(r["scene"]), f"{r['resolution'][0]}x{r['resolution'][1]}", _num(r["frame_s"]),
+                     *[_num(r["per_frame_s"].get(n)) for n in stages],
+                     _num(sum(r["setup_s"].values())), html.escape(inside)])
+    parts.append(_table(["scene", "resolution", "frame [s]", *stages, "setup [s]", "timed inside"], rows))
+    return "\n".join(parts)
+
+
+FAMILY_MARKERS = {"uniform sampling": "o", "adaptive sampling": "s", "importance sampling": "D",
+                  "ratio estimator": "^", "penumbra re-shading": "v", "reflection cone": "P", "SSS off": "X",
+                  "no supersampling": "x"}
+
+
+def render_sweep_png(scene: dict) -> bytes:
+    """FLIP against seconds per frame for one scene's rendering sweep, one marker per option family."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=80)
+    points = scene["points"]
+    for family, marker in FAMILY_MARKERS.items():
+        mine = [p for p in points if p["family"] == family and p["flip"] > 0.0]
+        if mine:
+            ax.scatter([p["seconds"] for p in mine], [p["flip"] for p in mine], marker=marker, label=family, alpha=0.8)
+    front = [points[i] for i in scene["pareto"]]
+    ax.plot([p["seconds"] for p in front], [p["flip"] for p in front], "k-", lw=1.2, zorder=0, label="Pareto front")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("render time per frame [s]")
+    ax.set_ylabel("mean FLIP against the reference [-]")
+    ax.set_title(f"{scene['scene']} at {scene['resolution'][0]}x{scene['resolution'][1]}", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    return _png(fig)
+
+
+def render_sweeps_section(sweeps: dict) -> str:
+    cached = " <em>(cached)</em>" if sweeps.get("cached") else ""
+    parts = [f'<h2 id="render-sweeps">Rendering: what each option buys and costs{cached}</h2>',
+             "<p>Frame 1 of each scene, every setting at 2x2 supersampling unless marked 1x1, against a uniform, "
+             "high-sample, 2x2, Monte Carlo reference of the same frame; FLIP of the tone-mapped images and relative "
+             "RMSE of the HDR against seconds per frame (render_hdr only). See docs/report.md.</p>"]
+    for scene in sweeps["scenes"]:
+        cost = scene["painted_cost"]
+        parts.append(f"<h3>{html.escape(scene['scene'])}</h3>")
+        parts.append(_img(render_sweep_png(scene), "render-sweep", f"FLIP against time, {scene['scene']}"))
+        parts.append(f"<p>Reference: {html.escape(scene['reference']['kind'])} ({_num(scene['reference']['seconds'])} s). "
+                     f"Painted against adaptive sampling at {cost['samples']} samples: {_num(cost['importance_s'])} s "
+                     f"against {_num(cost['adaptive_s'])} s ({100 * cost['extra_fraction']:+.1f} %).</p>")
+        parts.append(_table(["setting", "option", "FLIP", "relative RMSE", "seconds", "Pareto"],
+                            [[html.escape(p["label"]), html.escape(p["family"]), _num(p["flip"]), _num(p["rel_rmse"]),
+                              _num(p["seconds"]), "&#9679;" if i in scene["pareto"] else ""]
+                             for i, p in enumerate(scene["points"])]))
+    return "\n".join(parts)
+
+
 def render_html(report: dict) -> str:
     cases = report["cases"]
     claims = _table(
@@ -142,9 +296,19 @@ def render_html(report: dict) -> str:
           html.escape(c["statement"]), _num(c["thesis_value"]) + (f" {c['unit']}" if c["thesis_value"] is not None else ""),
           html.escape(c["hardware"]), _num(c["ours"]), f'<b class="{c["verdict"].replace(" ", "-")}">{c["verdict"]}</b>',
           html.escape(c["reason"])] for c in report["claims"]], "claims")
+    # a scene's own report with no theses' case or sweep run has nothing to compare: the table would be all
+    # "not comparable"
+    compared = report["cases"] or report.get("render_sweeps")
+    claims = f'<h2 id="claims">The thesis\'s claims, side by side</h2>\n{claims}' if compared else ""
     machine = report["machine"]
     versions = ", ".join(f"{k} {v}" for k, v in report["versions"].items())
     body = "\n".join(_case_section(case) for case in cases.values())
+    if report.get("render_sweeps"):
+        body += "\n" + render_sweeps_section(report["render_sweeps"])
+    if report.get("stage_costs"):
+        body += "\n" + stage_section(report["stage_costs"], report["machine"])
+    if report.get("scene"):
+        body = scene_section(report["scene"]) + "\n" + body
     not_covered = "".join(f"<li>{html.escape(item)}</li>" for item in report["not_covered"])
     style = ("body{font-family:sans-serif;max-width:70em;margin:1em auto;padding:0 1em}"
              "table{border-collapse:collapse;margin:.5em 0;font-size:90%}td,th{border:1px solid #bbb;padding:2px 6px}"
@@ -161,7 +325,6 @@ settings and code (marked cached); only the theses' values are typed in, with th
 <p>How to read it: each figure plots, per case, the error of every integrator setting against the wall time it
 takes per simulated second (log-log, lower-left is better); circled points joined by the black line are the
 Pareto front (no other setting is both faster and more accurate). See docs/report.md.</p>
-<h2 id="claims">The thesis's claims, side by side</h2>
 {claims}
 {body}
 <h2 id="not-covered">Not covered by this report yet</h2><ul>{not_covered}</ul>
