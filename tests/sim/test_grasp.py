@@ -66,3 +66,58 @@ def test_tear_force_breaks_the_attachment_when_pulled_hard():
     assert grasp.nodes.size == 0 and grasp.torn >= 1
     # torn, the top face hangs back well below the tool
     assert state.x[:, 2].max() < 0.1 + 0.01
+
+
+def _scene(scene_dict, integrator="xpbd"):
+    """The minimal scene's 10x10x4 cm liver block, unfixed, resting on a floor at z = 0 (friction 0.5), grasped at its
+    top face's centre by a still sphere from t = 0."""
+    body = scene_dict["objects"][0]
+    del body["fixed"]
+    body["floor"] = {"point": [0.0, 0.0, 0.0], "normal": [0.0, 0.0, 1.0], "friction": 0.5}
+    scene_dict["simulation"] = {"integrator": integrator, "dt": 1 / 48, "substeps": 10, "iterations": 4}
+    if integrator == "xpbd":
+        scene_dict["simulation"]["xpbd"] = {"damping": 20.0}
+    scene_dict["tools"] = [{"name": "jaws", "radius": 0.005, "visible": False,
+                            "keyframes": [{"t": 0.0, "position": [0.04, 0.04, 0.045]}],
+                            "grasp": [{"t_close": 0.0, "t_release": 100.0, "radius": 0.022}]}]
+    return scene_dict
+
+
+def test_a_scene_grasp_and_floor_share_the_weight_of_the_block(scene_dict, write_scene):
+    from tissuerender import load_scene
+    from tissuerender.plan import make_plan
+    from tissuerender.stages import StageRecorder
+    from tissuerender.world import ToolForceLog, advance, build_world
+
+    scene = load_scene(write_scene(_scene(scene_dict)))
+    plan = make_plan(scene)
+    recorder = StageRecorder()
+    world = build_world(scene, plan, recorder)
+    model = world.bodies[0].model
+    assert model.contact_planes[0].friction == 0.5 and model.grasps[0].radius == 0.022
+    for _ in range(24):
+        advance(world, scene, recorder)
+    assert world.integrators[0].grasps[0].nodes.size == 5  # the top node under the jaws and its 4 neighbours (2 cm grid)
+    weight = model.mass.sum() * 9.81
+    tool, floor = world.tool_loads
+    # at rest, the jaws (holding the top face's centre) and the floor carry the weight between them: the impulses of
+    # gravity, contact and attachment balance up to the remaining motion (damped 20/s for 0.5 s: measured below 0.1 %)
+    assert tool[2] + floor[2] == pytest.approx(-weight, rel=0.01)
+    assert floor[2] < -0.5 * weight and np.isnan(floor[3:]).all()
+    log = ToolForceLog(scene)
+    assert log.names == ["jaws", "floor:block"]
+
+
+@pytest.mark.parametrize("integrator", ["explicit", "none"])
+def test_grasp_and_floor_need_the_xpbd_integrator(scene_dict, write_scene, integrator):
+    from tissuerender import load_scene
+    from tissuerender.errors import SceneError
+
+    data = _scene(scene_dict, integrator)
+    data["simulation"] = {"integrator": integrator} | ({"dt": 1 / 48} if integrator != "none" else {})
+    del data["tools"][0]["visible"]
+    with pytest.raises(SceneError) as error:
+        load_scene(write_scene(data))
+    message = str(error.value)
+    assert "tools[0].grasp" in message
+    assert (f"not for simulation.integrator = {integrator!r}" if integrator != "none" else "simulates nothing") in message
