@@ -133,7 +133,8 @@ class PlaneState:
         self.dn[:] = 0.0
 
     def project(self, x: np.ndarray, w: np.ndarray, load: np.ndarray) -> None:
-        """Move the free nodes below the plane onto it; adds ``sum m dx`` to ``load[:3]``."""
+        """Move the free nodes below the plane onto it; adds ``sum m dx`` to ``load[:3]`` and its moment about the
+        plane's ``point`` to ``load[3:]``."""
         p = self.plane
         d = (x - p.point) @ p.normal
         below = np.flatnonzero((d < 0.0) & (w > 0.0))
@@ -142,7 +143,9 @@ class PlaneState:
         depth = -d[below]
         x[below] += depth[:, None] * p.normal
         self.dn[below] += depth
-        load[:3] += (depth / w[below]).sum() * p.normal
+        j = (depth / w[below])[:, None] * p.normal
+        load[:3] += j.sum(axis=0)
+        load[3:] += np.cross(x[below] - p.point, j).sum(axis=0)
 
     def friction(self, x: np.ndarray, x_prev: np.ndarray, w: np.ndarray, load: np.ndarray) -> None:
         """Coulomb friction on the nodes that touched the plane this substep (static or kinetic)."""
@@ -159,4 +162,6 @@ class PlaneState:
         scale = np.where(slip < limit, 1.0, limit / np.where(slip > 0.0, slip, 1.0))
         corr = -scale[:, None] * dx_t
         x[touched] += corr
-        load[:3] += (corr / w[touched][:, None]).sum(axis=0)
+        j = corr / w[touched][:, None]
+        load[:3] += j.sum(axis=0)
+        load[3:] += np.cross(x[touched] - self.plane.point, j).sum(axis=0)

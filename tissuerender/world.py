@@ -36,7 +36,7 @@ class World:
     # (tools, 6): force [N] and torque [N m] about its centre the tissue exerted on each tool, mean over the last frame
     # interval, summed over bodies; NaN where a body's integrator reports no contact forces (only xpbd does)
     tool_loads: np.ndarray | None = None
-    # then one row per body with a floor (objects.floor, ``floor_names``): the force the body exerts on it, torque NaN
+    # then one row per body with a floor (objects.floor, ``floor_names``): force and torque about its point on it
 
 
 def build_world(scene: Scene, plan: Plan, recorder: StageRecorder) -> World:
@@ -96,8 +96,6 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
     with recorder.run("simulate"):
         for i, integrator in enumerate(world.integrators):
             has_floor = world.bodies[i].spec.floor is not None
-            if loads is not None and has_floor:
-                loads[floor_row, 3:] = np.nan  # the floor's torque is not computed
             name = world.bodies[i].spec.name
             for j in range(n):
                 state = world.states[i]
@@ -115,7 +113,7 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
                     step_loads = getattr(integrator, "tool_loads", None)
                     loads[:len(scene.tools)] += np.nan if step_loads is None else step_loads / n
                     if has_floor:
-                        loads[floor_row, :3] += integrator.plane_loads[0] / n
+                        loads[floor_row] += integrator.plane_loads[0] / n
                 bad = ~np.isfinite(state.x).all(axis=1)
                 if bad.any():
                     raise SimulationFailed(

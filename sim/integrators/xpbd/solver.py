@@ -109,7 +109,7 @@ class XPBD:
 
     name = "xpbd"
     tool_loads: np.ndarray | None = None  # (probes, 6): force [N] and torque [N m] on each tool, last step
-    plane_loads: np.ndarray | None = None  # (planes, 3): force [N] the tissue exerted on each contact plane, last step
+    plane_loads: np.ndarray | None = None  # (planes, 6): force [N], torque about its point [N m] on each plane, last step
 
     def __init__(self, model: Model, settings: XPBDSettings | dict | None = None):
         settings = XPBDSettings.of(settings)
@@ -243,7 +243,7 @@ class XPBD:
         # the force and torque the tissue exerts on each tool, averaged over the step: minus the contact impulses
         # m dx / h of every substep, divided by the step (sum over substeps of (m dx / h^2) h / dt)
         self.tool_loads = -loads / (h * dt)
-        self.plane_loads = -plane_loads[:, :3] / (h * dt)
+        self.plane_loads = -plane_loads / (h * dt)
         if self.branches is not None:
             self.branches.relax(x, dt)
             for constraints, (_, rest) in zip(self.sets[1:], self.branches.sets()[1:]):
