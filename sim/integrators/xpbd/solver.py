@@ -13,7 +13,8 @@ swept concurrently, ``sim.integrators.xpbd.colouring.split_into_domains``, and a
 vectorised blocks, ``sim.integrators.xpbd.blocked``), project
 ``dlambda = (-C - alpha~ lambda) / (sum_i w_i |grad_i C|^2 + alpha~)``, ``alpha~ = alpha / dt^2``,
 ``x_i += w_i grad_i C dlambda`` (Qian 4.42–4.44; its eq. 4.22 gradient typo: docs/design.md, "Qian 4.22: strain-constraint gradient");
-then tool contact, then the nodes held in some components only are projected back onto their constraint
+then tool contact, grasp attachments and static contact planes (``sim.contact``; Coulomb friction once after the
+sweeps), then the nodes held in some components only are projected back onto their constraint
 (``sim.model.PartialTargets``), then ``v = (x - x_prev) / dt``. ``tool_loads``: the force and torque the tissue
 exerted on each probe over the last step (minus the contact impulses over the step, ``sim.probe``). The ``jacobi`` solver averages the corrections of all
 tets per iteration (with relaxation) instead.
