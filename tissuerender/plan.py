@@ -94,7 +94,8 @@ def make_plan(scene: Scene) -> Plan:
            (f"the {integrator} integrator has no fibre terms: the material is treated as isotropic "
             f"(supported by {', '.join(supported_by('fibres'))})") if fibred else
            ("no simulated anisotropic material" if simulate else "no simulation"))
-    decide("contact", simulate and bool(scene.tools), "tools touch the tissue",
+    floors = any(o.kind == "body" and o.floor is not None for o in scene.objects)  # issue 21 item 4
+    decide("contact", simulate and (bool(scene.tools) or floors), "tools or floors touch the tissue",
            "no tools" if not scene.tools else "no simulation")
     decide("embed", simulate, "render surfaces follow the simulated tets", "render surfaces stay at rest")
     decide("write_vtu", simulate and ("vtu" in scene.output.formats or scene.simulation.write_vtu),

@@ -36,6 +36,7 @@ class World:
     # (tools, 6): force [N] and torque [N m] about its centre the tissue exerted on each tool, mean over the last frame
     # interval, summed over bodies; NaN where a body's integrator reports no contact forces (only xpbd does)
     tool_loads: np.ndarray | None = None
+    # then one row per body with a floor (objects.floor, ``floor_names``): force and torque about its point on it
 
 
 def build_world(scene: Scene, plan: Plan, recorder: StageRecorder) -> World:
@@ -48,20 +49,28 @@ def build_world(scene: Scene, plan: Plan, recorder: StageRecorder) -> World:
             surfaces = [build_static_surface(o, i, scene) for i, o in enumerate(scene.objects) if o.kind == "surface"]
     world = World(bodies, surfaces)
     if "contact" in plan:
-        world.tool_loads = np.zeros((len(scene.tools), 6))
+        world.tool_loads = np.zeros((len(scene.tools) + len(floor_names(scene)), 6))
     if "simulate" in plan:
         probes = [make_probe(t) for t in scene.tools] if "contact" in plan else []
         sim = scene.simulation
         settings = dict(getattr(sim, sim.integrator).model_dump())
         settings.update(substeps=sim.substeps, iterations=sim.iterations)
+        grasps = [g.to_sim(k, t.radius) for k, t in enumerate(scene.tools) for g in t.grasp] if probes else []
         for body in bodies:
             body.model.probes = list(probes)
+            body.model.grasps = list(grasps)  # sim.contact, xpbd only (interaction_schema.check_interaction)
+            body.model.contact_planes = [] if body.spec.floor is None else [body.spec.floor.to_sim()]
             try:
                 world.integrators.append(integrators.make_integrator(sim.integrator, body.model, settings))
             except (NotImplementedError, ValueError) as e:
                 raise UserError(f"{scene.path}: [simulation.{sim.integrator}] for object {body.spec.name!r}: {e}") from None
             world.states.append(State.at_rest(body.model))
     return world
+
+
+def floor_names(scene: Scene) -> list[str]:
+    """The rows of the bodies' floors in the tool-force log, after the tools': ``floor:<object>``."""
+    return [f"floor:{o.name}" for o in scene.objects if o.kind == "body" and o.floor is not None]
 
 
 def make_probe(tool) -> Probe:
@@ -83,8 +92,10 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
     f = world.frames_advanced
     n = scene.steps_per_frame
     loads = None if world.tool_loads is None else np.zeros_like(world.tool_loads)
+    floor_row = len(scene.tools)
     with recorder.run("simulate"):
         for i, integrator in enumerate(world.integrators):
+            has_floor = world.bodies[i].spec.floor is not None
             name = world.bodies[i].spec.name
             for j in range(n):
                 state = world.states[i]
@@ -100,13 +111,16 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
                 world.states[i] = state
                 if loads is not None:
                     step_loads = getattr(integrator, "tool_loads", None)
-                    loads += np.nan if step_loads is None else step_loads / n
+                    loads[:len(scene.tools)] += np.nan if step_loads is None else step_loads / n
+                    if has_floor:
+                        loads[floor_row] += integrator.plane_loads[0] / n
                 bad = ~np.isfinite(state.x).all(axis=1)
                 if bad.any():
                     raise SimulationFailed(
                         f"{scene.path}: frame {f + 2}, object {name!r}, stage simulate: {scene.simulation.integrator} "
                         f"produced non-finite positions at {int(bad.sum())} of {bad.size} nodes (first: node "
                         f"{int(np.flatnonzero(bad)[0])}) at t = {state.t:.4g} s. Try a smaller simulation.dt or more substeps.")
+            floor_row += has_floor
     world.frames_advanced = f + 1
     if loads is not None:
         world.tool_loads = loads
@@ -129,7 +143,7 @@ class ToolForceLog:
     Integrators other than xpbd resolve no tool contact forces: NaN."""
 
     def __init__(self, scene: Scene):
-        self.names = [t.name for t in scene.tools]
+        self.names = [t.name for t in scene.tools] + floor_names(scene)
         self.rows: dict[int, tuple[float, np.ndarray]] = {}
 
     def record(self, frame: int, t: float, world: World) -> None:

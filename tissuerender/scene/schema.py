@@ -22,6 +22,7 @@ from sim.integrators.xpbd.settings import XPBDSceneSettings
 
 from tissuerender.scene.camera_schema import CameraKeyframe, CameraLens, check_path, degenerate_view
 from tissuerender.scene.bc_schema import HeldComponents
+from tissuerender.scene.interaction_schema import FloorSpec, GraspSpec
 from tissuerender.scene.optics_schema import LayerOverride
 from tissuerender.scene.shapes import SHAPES
 
@@ -168,6 +169,7 @@ class ObjectSpec(Strict):
     fixed: list[FixedRegion] = Field([], description="body: regions whose nodes are held at rest (table below)")
     prescribed: list[Prescribed] = Field([], description="body: regions moved by a displacement ramp (table below)")
     tractions: list[Traction] = Field([], description="body: regions loaded by a constant traction (table below)")
+    floor: FloorSpec | None = Field(None, description="body: a static plane it rests on, with friction (xpbd; table below)")
     paint: Annotated[list[PaintStroke], Field(max_length=1000)] = Field([], description=(
         "body: heterogeneous stiffness, poly6 strokes (Qian 4.26-4.28; table below)"))
 
@@ -223,6 +225,8 @@ class Tool(Strict):
     visible: bool = Field(True, description="render the tool (it pushes tissue only when the scene is simulated)")
     keyframes: Annotated[list[Keyframe], Field(min_length=1, max_length=10000, description=(
         "path, linearly interpolated, times strictly increasing (table below)"))]
+    grasp: Annotated[list[GraspSpec], Field(max_length=100)] = Field([], description=(
+        "jaws closing on the tissue and opening again (xpbd; table below; docs/interaction.md)"))
 
     @model_validator(mode="after")
     def _ordered(self):

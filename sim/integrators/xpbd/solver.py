@@ -13,7 +13,8 @@ swept concurrently, ``sim.integrators.xpbd.colouring.split_into_domains``, and a
 vectorised blocks, ``sim.integrators.xpbd.blocked``), project
 ``dlambda = (-C - alpha~ lambda) / (sum_i w_i |grad_i C|^2 + alpha~)``, ``alpha~ = alpha / dt^2``,
 ``x_i += w_i grad_i C dlambda`` (Qian 4.42–4.44; its eq. 4.22 gradient typo: docs/design.md, "Qian 4.22: strain-constraint gradient");
-then tool contact, then the nodes held in some components only are projected back onto their constraint
+then tool contact, grasp attachments and static contact planes (``sim.contact``; Coulomb friction once after the
+sweeps), then the nodes held in some components only are projected back onto their constraint
 (``sim.model.PartialTargets``), then ``v = (x - x_prev) / dt``. ``tool_loads``: the force and torque the tissue
 exerted on each probe over the last step (minus the contact impulses over the step, ``sim.probe``). The ``jacobi`` solver averages the corrections of all
 tets per iteration (with relaxation) instead.
@@ -36,6 +37,7 @@ from sim.integrators.xpbd.energy import EnergyConstraints
 from sim.integrators.xpbd.prony import MaxwellBranches
 from sim.integrators.xpbd.settings import XPBDSettings, limit_boxes
 from sim.integrators.xpbd.strain import GreenStrainLimits
+from sim.contact import GraspState, PlaneState
 from sim.model import Model, State
 from sim.probe import resolve_contact_load
 
@@ -108,6 +110,7 @@ class XPBD:
 
     name = "xpbd"
     tool_loads: np.ndarray | None = None  # (probes, 6): force [N] and torque [N m] on each tool, last step
+    plane_loads: np.ndarray | None = None  # (planes, 6): force [N], torque about its point [N m] on each plane, last step
 
     def __init__(self, model: Model, settings: XPBDSettings | dict | None = None):
         settings = XPBDSettings.of(settings)
@@ -168,6 +171,9 @@ class XPBD:
         counts = np.bincount(self.tets.ravel(), minlength=m.n_nodes).astype(np.float64)
         self.tet_scale = self.relaxation / counts[self.tets].max(axis=1)
         self.f_ext_acc = m.nodal_external_force() * np.where(self.w > 0, self.w, 0.0)[:, None]
+        # grasps and static contact planes (sim.contact), optional attributes of the model
+        self.grasps = [GraspState(g, m.probes[g.probe]) for g in getattr(m, "grasps", ())]
+        self.planes = [PlaneState(p, m.n_nodes) for p in getattr(m, "contact_planes", ())]
 
     def step(self, state: State, dt: float) -> State:
         m = self.model
@@ -179,10 +185,11 @@ class XPBD:
         # with probes, limits or several constraint sets, those are visited after every sweep; else
         # one kernel call does all the iterations
         per_sweep = (bool(m.probes) or self.strain_limits is not None or self.green_limits is not None
-                     or not self.partial.empty)
+                     or not self.partial.empty or bool(self.planes))
         per_call = 1 if per_sweep or len(self.sets) > 1 else self.iterations
         loads = np.zeros((len(m.probes), 6))  # per probe: sum of m dx and its moment, over this step
         substep_load = np.zeros(6)
+        plane_loads = np.zeros((len(self.planes), 6))
         for _ in range(self.substeps):
             t_next = t + h
             x_prev = x.copy()
@@ -193,6 +200,16 @@ class XPBD:
                 constraints.reset()
             if self.green_limits is not None:
                 self.green_limits.reset()
+            w_tools = self.w
+            for grasp in self.grasps:
+                grasp.update(x_prev, self.w, t, t_next)
+                grasp.reset()
+            if any(g.nodes.size for g in self.grasps):  # grasped nodes follow the jaws, not pushed out of them
+                w_tools = self.w.copy()
+                for grasp in self.grasps:
+                    w_tools[grasp.nodes] = 0.0
+            for plane in self.planes:
+                plane.reset()
             for _ in range(self.iterations // per_call):
                 for constraints in self.sets:
                     constraints.sweeps(x, inv_dt2, per_call)
@@ -203,11 +220,21 @@ class XPBD:
                     self.green_limits.project(x, self.w, inv_dt2)
                 for k, probe in enumerate(m.probes):
                     substep_load[:] = 0.0
-                    resolve_contact_load(x, probe, t_next, self.w, substep_load)
+                    resolve_contact_load(x, probe, t_next, w_tools, substep_load)
                     loads[k] += substep_load
+                for grasp in self.grasps:
+                    grasp.project(x, self.w, t_next, inv_dt2, loads[grasp.grasp.probe])
+                for k, plane in enumerate(self.planes):
+                    plane.project(x, self.w, plane_loads[k])
                 # a zero-compliance constraint on the held components, projected last in each sweep (Gauss-Seidel):
                 # the converged state is XPBD's with the generalised inverse mass P / m on these nodes
                 self.partial.place(x, t_next)
+            for k, plane in enumerate(self.planes):
+                plane.friction(x, x_prev, self.w, plane_loads[k])
+            if self.planes:
+                self.partial.place(x, t_next)
+            for grasp in self.grasps:
+                grasp.tear(inv_dt2)
             v = (x - x_prev) / h
             if self.damping > 0.0:
                 v *= np.exp(-self.damping * h)
@@ -217,6 +244,7 @@ class XPBD:
         # the force and torque the tissue exerts on each tool, averaged over the step: minus the contact impulses
         # m dx / h of every substep, divided by the step (sum over substeps of (m dx / h^2) h / dt)
         self.tool_loads = -loads / (h * dt)
+        self.plane_loads = -plane_loads / (h * dt)
         if self.branches is not None:
             self.branches.relax(x, dt)
             for constraints, (_, rest) in zip(self.sets[1:], self.branches.sets()[1:]):
