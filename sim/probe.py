@@ -123,6 +123,7 @@ def push_out_of_capsule_load(x, inv_mass, a, b, radius, centre, load):
 
 def resolve_contact_load(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray, load: np.ndarray) -> int:
     """:func:`resolve_contact`, summing into ``load`` (6,) the mass-weighted displacement and its moment about the
-    probe's centre at ``t`` (:func:`push_out_of_capsule_load`)."""
+    probe's centre at ``t`` (:func:`push_out_of_capsule_load`), over every capsule of the probe."""
     centre = probe.position(t)
-    return sum(int(push_out_of_capsule_load(x, inv_mass, a, b, float(r), centre, load)) for a, b, r in probe.capsules(t))
+    return sum(int(push_out_of_capsule_load(x, inv_mass, a, b, float(r), centre, load))
+               for a, b, r in probe.capsules(t))

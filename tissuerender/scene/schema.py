@@ -226,7 +226,8 @@ class Tool(Strict):
     radius: Annotated[float, Field(gt=0.0, le=10.0, description="probe radius [m]")]
     length: Annotated[float, Field(ge=0.0, le=10.0, description=(
         "capsule segment length [m] (> 0 for a capsule); an instrument's shaft length behind its tip (> 0)"))] = 0.0
-    axis: Vec3 = Field([0.0, 0.0, 1.0], description="capsule axis (non-zero)")
+    axis: Vec3 = Field([0.0, 0.0, 1.0], description=(
+        "capsule axis (non-zero); an instrument's handle-to-tip direction where a keyframe gives no orientation"))
     visible: bool = Field(True, description="render the tool (it pushes tissue only when the scene is simulated)")
     keyframes: Annotated[list[Keyframe], Field(min_length=1, max_length=10000, description=(
         "path, linearly interpolated, times strictly increasing (table below)"))]
