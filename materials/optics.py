@@ -145,6 +145,7 @@ class OpticalMaterial:
     sss_colour: tuple[float, float, float] = (0.8, 0.25, 0.2)
     layers: MucosaLayers | None = None
     bsdf: str = "tissue"  # "tissue" (Cook-Torrance + SSS, optional layers) | "roughplastic" (Mitsuba's model)
+    metal_f0: float | None = None  # a metal's Schlick F0 (instead of the dielectric's from ior)
 
     @property
     def diffuse_albedo(self) -> tuple[float, float, float]:
@@ -153,6 +154,8 @@ class OpticalMaterial:
 
     @property
     def f0(self) -> float:
+        if self.metal_f0 is not None:
+            return self.metal_f0
         return ((self.ior - 1.0) / (self.ior + 1.0)) ** 2
 
 
@@ -240,6 +243,12 @@ OPTICS: dict[str, OpticalMaterial] = {
     # Lambertian base, no subsurface term (tissuerender.renderer.bsdf.plastic).
     "plastic": OpticalMaterial(albedo=(0.55, 0.55, 0.58), roughness=0.25, ior=1.49, k_sss=0.0,
                                sigma=(1.0, 1.0, 1.0), sss_colour=(0.0, 0.0, 0.0), bsdf="roughplastic"),
+    # Instruments (tools only, not a body material): stainless steel as the tissue BSDF's GGX lobe with
+    # Schlick F0 = 0.533, the conductor reflectance of n + ik = 2.9 + 3.1i at normal incidence
+    # (tissuerender.instruments.STEEL_F0), no diffuse or subsurface light; brushed: roughness 0.2.
+    "steel": OpticalMaterial(albedo=(0.0, 0.0, 0.0), roughness=0.2, ior=1.5, k_sss=0.0, sigma=(1.0, 1.0, 1.0),
+                             sss_colour=(0.0, 0.0, 0.0),
+                             metal_f0=((2.9 - 1.0) ** 2 + 3.1 ** 2) / ((2.9 + 1.0) ** 2 + 3.1 ** 2)),
 }
 
 

@@ -26,14 +26,15 @@ class Probe:
     positions: np.ndarray
     axis: np.ndarray = None
     length: float = 0.0
+    KINDS = ("sphere", "capsule")  # a subclass with other capsules (tissuerender.instruments) widens it
 
     def __post_init__(self):
         self.times = np.asarray(self.times, dtype=np.float64).reshape(-1)
         self.positions = np.asarray(self.positions, dtype=np.float64).reshape(-1, 3)
         axis = np.array([0.0, 0.0, 1.0]) if self.axis is None else np.asarray(self.axis, dtype=np.float64)
         self.axis = axis / np.linalg.norm(axis)
-        if self.kind not in ("sphere", "capsule"):
-            raise ValueError(f"probe kind must be 'sphere' or 'capsule', found {self.kind!r}")
+        if self.kind not in self.KINDS:
+            raise ValueError(f"probe kind must be one of {', '.join(self.KINDS)}, found {self.kind!r}")
 
     def position(self, t: float) -> np.ndarray:
         """Path point at time ``t`` (linear between keyframes, held before the first and after the last)."""
@@ -43,6 +44,10 @@ class Probe:
         c = self.position(t)
         half = 0.5 * self.length * self.axis if self.kind == "capsule" else np.zeros(3)
         return c - half, c + half
+
+    def capsules(self, t: float) -> list[tuple]:
+        """The capsules (a, b, radius) the probe is made of at ``t``: here its one segment."""
+        return [(*self.segment(t), float(self.radius))]
 
 
 @njit(cache=True)
@@ -75,8 +80,7 @@ def push_out_of_capsule(x, inv_mass, a, b, radius):
 
 def resolve_contact(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray) -> int:
     """Project the free nodes of ``x`` (in place) out of ``probe`` at time ``t``; returns how many moved."""
-    a, b = probe.segment(t)
-    return int(push_out_of_capsule(x, inv_mass, a, b, float(probe.radius)))
+    return sum(int(push_out_of_capsule(x, inv_mass, a, b, float(r))) for a, b, r in probe.capsules(t))
 
 
 @njit(cache=True)
@@ -119,6 +123,7 @@ def push_out_of_capsule_load(x, inv_mass, a, b, radius, centre, load):
 
 def resolve_contact_load(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray, load: np.ndarray) -> int:
     """:func:`resolve_contact`, summing into ``load`` (6,) the mass-weighted displacement and its moment about the
-    probe's centre at ``t`` (:func:`push_out_of_capsule_load`)."""
-    a, b = probe.segment(t)
-    return int(push_out_of_capsule_load(x, inv_mass, a, b, float(probe.radius), probe.position(t), load))
+    probe's centre at ``t`` (:func:`push_out_of_capsule_load`), over every capsule of the probe."""
+    centre = probe.position(t)
+    return sum(int(push_out_of_capsule_load(x, inv_mass, a, b, float(r), centre, load))
+               for a, b, r in probe.capsules(t))

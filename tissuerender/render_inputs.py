@@ -10,6 +10,7 @@ import numpy as np
 import materials
 from materials.optics import with_overrides
 from sim.mesh.surface import vertex_normals
+from tissuerender import instruments
 from tissuerender.errors import SceneError
 from tissuerender.groundtruth.lens import FisheyeLens, fisheye_lens
 from tissuerender.plan import Plan
@@ -125,6 +126,8 @@ def tool_surface(tool, t: float):
     simulation probe's own path."""
     import trimesh  # heavy (pulls in scipy.spatial) and needed only by scenes with visible tools: kept lazy
 
+    if tool.kind in instruments.INSTRUMENT_KINDS:
+        return instruments.instrument_surface(tool, t)
     probe = make_probe(tool)
     centre = np.asarray(probe.position(t), dtype=np.float64)
     if tool.kind == "sphere":
@@ -175,7 +178,9 @@ def render_objects(world: World, scene: Scene, t: float, plan: Plan, recorder: S
         if tool.visible:
             pts, tris, normals = tool_surface(tool, t)
             vel = np.zeros_like(pts) if "velocity_channel" in plan else None
+            steel = tool.kind in instruments.INSTRUMENT_KINDS
             objects.append(RenderObject(points=pts, triangles=tris, normals=normals, uv=None,
-                                        material="plastic", object_id=oid, velocity=vel, name=tool.name))
+                                        material="steel" if steel else "plastic", object_id=oid, velocity=vel,
+                                        optics=materials.optics.OPTICS["steel"] if steel else None, name=tool.name))
             oid += 1
     return objects, positions

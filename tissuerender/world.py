@@ -12,6 +12,7 @@ from sim import integrators  # called through the module, so tests can replace m
 from sim.errors import SimulationDiverged
 from sim.model import State
 from sim.probe import Probe
+from tissuerender import instruments
 from tissuerender.bodies import Body, StaticSurface, build_body, build_static_surface
 from tissuerender.errors import UserError
 from tissuerender.files import write_atomic
@@ -75,6 +76,8 @@ def floor_names(scene: Scene) -> list[str]:
 
 def make_probe(tool) -> Probe:
     """The simulation's rigid probe for a scene tool (its keyframed path)."""
+    if tool.kind in instruments.INSTRUMENT_KINDS:
+        return instruments.InstrumentProbe(tool)
     times = np.array([k.t for k in tool.keyframes], dtype=np.float64)
     positions = np.array([k.position for k in tool.keyframes], dtype=np.float64)
     return Probe(kind=tool.kind, radius=tool.radius, times=times, positions=positions,

@@ -213,15 +213,23 @@ class Simulation(Strict):
 
 class Keyframe(Strict):
     t: Annotated[float, Field(ge=0.0, le=1e6, description="time [s]")]
-    position: Annotated[Vec3, Field(description="the tool's position at t [m]")]
+    position: Annotated[Vec3, Field(description="the tool's position at t [m] (an instrument's: its tip joint)")]
+    orientation: Annotated[list[float], Field(min_length=4, max_length=4)] | None = Field(None, description=(
+        "grasper / l_hook: unit quaternion (w, x, y, z) taking the tool frame (+z towards the tip) to the world, "
+        "slerped between keyframes (normalised; default: +z turned onto axis); docs/interaction.md, \"Instruments\""))
+    jaw_deg: Annotated[float, Field(ge=0.0, le=90.0)] | None = Field(None, description=(
+        "grasper: jaw opening angle [deg], linear between keyframes (default 30)"))
 
 
 class Tool(Strict):
     name: Annotated[str, Field(min_length=1, max_length=200, description="unique among tools")]
-    kind: Literal["sphere", "capsule"] = Field("sphere", description="rigid probe shape")
+    kind: Literal["sphere", "capsule", "grasper", "l_hook"] = Field("sphere", description=(
+        "rigid probe shape; grasper and l_hook: steel instruments made of capsules (docs/interaction.md)"))
     radius: Annotated[float, Field(gt=0.0, le=10.0, description="probe radius [m]")]
-    length: Annotated[float, Field(ge=0.0, le=10.0, description="capsule segment length [m] (> 0 for a capsule)")] = 0.0
-    axis: Vec3 = Field([0.0, 0.0, 1.0], description="capsule axis (non-zero)")
+    length: Annotated[float, Field(ge=0.0, le=10.0, description=(
+        "capsule segment length [m] (> 0 for a capsule); an instrument's shaft length behind its tip (> 0)"))] = 0.0
+    axis: Vec3 = Field([0.0, 0.0, 1.0], description=(
+        "capsule axis (non-zero); an instrument's handle-to-tip direction where a keyframe gives no orientation"))
     visible: bool = Field(True, description="render the tool (it pushes tissue only when the scene is simulated)")
     keyframes: Annotated[list[Keyframe], Field(min_length=1, max_length=10000, description=(
         "path, linearly interpolated, times strictly increasing (table below)"))]
@@ -233,8 +241,11 @@ class Tool(Strict):
         times = [k.t for k in self.keyframes]
         if any(b <= a for a, b in zip(times, times[1:])):
             raise ValueError(f"keyframe times must increase strictly, found {times}")
-        if self.kind == "capsule" and self.length <= 0.0:
-            raise ValueError("a capsule needs length > 0")
+        if self.kind != "sphere" and self.length <= 0.0:
+            raise ValueError(f"a {self.kind} needs length > 0")
+        for k in self.keyframes:
+            if k.orientation is not None and sum(c * c for c in k.orientation) < 1e-12:
+                raise ValueError(f"keyframe t = {k.t}: orientation must be a non-zero quaternion, found {k.orientation}")
         if sum(a * a for a in self.axis) < 1e-12:
             raise ValueError(f"axis must be a non-zero vector, found {self.axis}")
         return self

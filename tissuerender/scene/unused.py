@@ -117,6 +117,15 @@ def _tools(scene):
             for name in ("length", "axis"):
                 if name in given:
                     return f"tools[{i}].{name}", "a sphere has no axis or length (only a capsule); remove it"
+        instrument = tool.kind in ("grasper", "l_hook")
+        for j, k in enumerate(tool.keyframes):
+            for name in ("orientation", "jaw_deg"):
+                if name in _set(k) and not (instrument if name == "orientation" else tool.kind == "grasper"):
+                    owner = "an instrument" if name == "orientation" else "a grasper"
+                    return f"tools[{i}].keyframes[{j}].{name}", (
+                        f"a tool of kind {tool.kind!r} has no {name} (only {owner}); remove it")
+        if instrument and "axis" in given and all(k.orientation is not None for k in tool.keyframes):
+            return f"tools[{i}].axis", "every keyframe gives an orientation, so the axis is never used; remove it"
         if not tool.visible and not scene.simulated():
             return f"tools[{i}].visible", ("an invisible tool acts only by pushing simulated tissue, and this scene "
                                            "simulates nothing: the tool has no effect")
