@@ -11,7 +11,7 @@ OUT ?= out
 # Two cores on the reference machine: one pytest worker each.
 PYTEST_WORKERS ?= 2
 
-.PHONY: setup render test bench clean system-deps
+.PHONY: setup render test bench clean system-deps gallery
 
 setup: system-deps $(STAMP)
 
@@ -49,6 +49,18 @@ test: setup
 
 bench: setup
 	for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b --quick || exit 1; done
+
+# The README gallery: frame 1 of every scene in scenes/ at 320x240 into docs/gallery/NAME.png (committed).
+GALLERY_SIZE ?= 320,240
+gallery: setup
+	mkdir -p docs/gallery
+	for s in scenes/*.toml; do \
+	  n=$$(basename $$s .toml); echo "== $$n"; \
+	  $(PY) -c 'import pathlib, sys, tissuerender; from tissuerender.files import write_png; \
+	    w, h = map(int, sys.argv[3].split(",")); \
+	    write_png(pathlib.Path(sys.argv[2]), tissuerender.render_image(tissuerender.load_scene(sys.argv[1]), resolution=(w, h)))' \
+	    $$s docs/gallery/$$n.png $(GALLERY_SIZE) || exit 1; \
+	done
 
 clean:
 	rm -rf $(OUT) .pytest_cache

@@ -15,21 +15,24 @@ SCENES = sorted((Path(__file__).resolve().parents[1] / "scenes").glob("*.toml"))
 
 # Each shipped scene's stages, read off its file by hand: what moves it, which switches are on, which effects
 # it lists (or its preset brings), which formats it writes.
+SURGICAL = ["mesh", "load_surface", "simulate", "contact", "embed", "raster", "bvh", "shadow_rays", "thickness",
+            "shade", "postfx.depth_of_field", "postfx.chromatic_aberration", "postfx.tonemap",
+            "postfx.laparoscope_mask", "write_png"]
 SHIPPED_PLANS = {
     # xpbd, a prescribed ramp, viscoelastic colon_mucosa; sss; preset hd_scope plus a depth_of_field table
     "colon_mucosa": ["mesh", "simulate", "prony_state", "embed", "raster", "bvh", "thickness", "shade",
                      "postfx.depth_of_field", "postfx.chromatic_aberration", "postfx.tonemap",
                      "postfx.laparoscope_mask", "write_png"],
-    # xpbd with a probe and gravity; shadows and sss; three effect tables
-    "default": ["mesh", "simulate", "contact", "embed", "raster", "bvh", "shadow_rays", "thickness", "shade",
-                "postfx.chromatic_aberration", "postfx.tonemap", "postfx.laparoscope_mask", "write_png"],
     # integrator "none": nothing simulated; sss; two effect tables
     "kidney_static": ["mesh", "raster", "bvh", "thickness", "shade", "postfx.tonemap", "postfx.laparoscope_mask",
                       "write_png"],
-    # a body and a static wall, a capsule probe; shadows and sss; preset hd_scope
-    "liver_probe": ["mesh", "load_surface", "simulate", "contact", "embed", "raster", "bvh", "shadow_rays",
-                    "thickness", "shade", "postfx.chromatic_aberration", "postfx.tonemap", "postfx.laparoscope_mask",
-                    "write_png"],
+    # the surgical scenes: bodies, a static wall or fat, probes; shadows and sss; preset hd_scope plus depth_of_field
+    **{name: SURGICAL for name in ("default", "liver_probe", "kidney_ebm", "cholecystectomy")},
+    # cnn inside a tube (a tet-mesh file: no static surface), a probe; shadows and sss; hd_scope and depth_of_field
+    "colon_cnn": [s for s in SURGICAL if s != "load_surface"],
+    # integrator "none", one slab; sss, no shadows; hd_scope and depth_of_field
+    "mucosa_closeup": ["mesh", "raster", "bvh", "thickness", "shade", "postfx.depth_of_field",
+                       "postfx.chromatic_aberration", "postfx.tonemap", "postfx.laparoscope_mask", "write_png"],
     # prescribed compression, no gravity, no tools; shadows; png and vtu
     "zhang_cylinder": ["mesh", "simulate", "embed", "write_vtu", "raster", "bvh", "shadow_rays", "shade",
                        "postfx.tonemap", "write_png"],
