@@ -50,10 +50,18 @@ class Probe:
         return [(*self.segment(t), float(self.radius))]
 
 
+def resolve_contact(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray) -> int:
+    """Project the free nodes of ``x`` (in place) out of ``probe`` at time ``t``; returns how many moved
+    (:func:`resolve_contact_load` with the load discarded: one kernel moves the nodes either way)."""
+    return resolve_contact_load(x, probe, t, inv_mass, np.zeros(6))
+
+
 @njit(cache=True)
-def push_out_of_capsule(x, inv_mass, a, b, radius):
-    """Move every free node (inverse mass > 0) inside the capsule a-b of ``radius`` onto its surface.
-    A sphere is the capsule with a == b. Returns the number of nodes moved."""
+def push_out_of_capsule_load(x, inv_mass, a, b, radius, centre, load):
+    """Move every free node (inverse mass > 0) inside the capsule a-b of ``radius`` onto its surface (a sphere is
+    the capsule with a == b), adding to ``load`` (6,) ``sum m dx`` [kg m] of the nodes it moves (``load[:3]``)
+    and their moment ``sum (p - centre) x m dx`` about ``centre`` (``load[3:]``), p the node's new position.
+    Returns the number of nodes moved."""
     ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
     len2 = ab0 * ab0 + ab1 * ab1 + ab2 * ab2
     moved = 0
@@ -69,39 +77,6 @@ def push_out_of_capsule(x, inv_mass, a, b, radius):
         dist = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         if dist < radius:
             if dist < 1e-12:  # at the axis: push along +z (up, away from the tissue's support)
-                d0, d1, d2, dist = 0.0, 0.0, 1.0, 1.0
-            scale = radius / dist
-            x[i, 0] = c0 + d0 * scale
-            x[i, 1] = c1 + d1 * scale
-            x[i, 2] = c2 + d2 * scale
-            moved += 1
-    return moved
-
-
-def resolve_contact(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray) -> int:
-    """Project the free nodes of ``x`` (in place) out of ``probe`` at time ``t``; returns how many moved."""
-    return sum(int(push_out_of_capsule(x, inv_mass, a, b, float(r))) for a, b, r in probe.capsules(t))
-
-
-@njit(cache=True)
-def push_out_of_capsule_load(x, inv_mass, a, b, radius, centre, load):
-    """:func:`push_out_of_capsule`, adding to ``load`` (6,) ``sum m dx`` [kg m] of the nodes it moves (``load[:3]``)
-    and their moment ``sum (p - centre) x m dx`` about ``centre`` (``load[3:]``), p the node's new position."""
-    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    len2 = ab0 * ab0 + ab1 * ab1 + ab2 * ab2
-    moved = 0
-    for i in range(x.shape[0]):
-        if inv_mass[i] == 0.0:
-            continue
-        ap0, ap1, ap2 = x[i, 0] - a[0], x[i, 1] - a[1], x[i, 2] - a[2]
-        s = 0.0
-        if len2 > 0.0:
-            s = min(max((ap0 * ab0 + ap1 * ab1 + ap2 * ab2) / len2, 0.0), 1.0)
-        c0, c1, c2 = a[0] + s * ab0, a[1] + s * ab1, a[2] + s * ab2
-        d0, d1, d2 = x[i, 0] - c0, x[i, 1] - c1, x[i, 2] - c2
-        dist = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        if dist < radius:
-            if dist < 1e-12:  # at the axis: push along +z, as push_out_of_capsule
                 d0, d1, d2, dist = 0.0, 0.0, 1.0, 1.0
             scale = radius / dist
             m = 1.0 / inv_mass[i]
