@@ -50,7 +50,8 @@ def frame(world, scene, plan, out: Path, passes: list[str], files: bool) -> tupl
         write_png(out / "frame_0001.png", postfx.to_uint8(image))
     if passes:
         with rec.run("write_passes"):
-            groundtruth.write_passes(out, 1, result.passes, list(range(1, len(world.bodies) + 1)))
+            groundtruth.write_passes(out, 1, result.passes, list(range(1, len(world.bodies) + 1)),
+                                     groundtruth.scope_mask_id(scene))
     if files:
         K = groundtruth.intrinsics(camera_for(scene))
         formats.write_frame_formats(out, 1, ["exr", "depth_png"], result.hdr, result.passes, K,
