@@ -84,6 +84,15 @@ def _pointwise_kernel(img, ops, fpar, ipar, lut, weights):
     return out
 
 
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+_NO_LUT = _readonly(np.zeros((2, 3), np.float32))
+_NO_WEIGHTS = _readonly(np.zeros((1, 1), np.float32))
+
+
 def pointwise_chain(img: np.ndarray, run, seed: int = 0) -> np.ndarray:
     """Apply ``run`` (a list of ``(name, params)`` of pointwise effects, at most one colour grade) in one
     pass; equal to applying them one after the other."""
@@ -92,8 +101,8 @@ def pointwise_chain(img: np.ndarray, run, seed: int = 0) -> np.ndarray:
     ops = np.array([_OP[name] for name, _ in run], np.int64)
     fpar = np.zeros((len(run), 4), np.float64)
     ipar = np.zeros((len(run), 2), np.int64)
-    lut = np.zeros((2, 3), np.float32)
-    weights = np.zeros((1, 1), np.float32)
+    # placeholders read-only like grade_lut's and mask_weights' cached arrays: one numba signature, one compile
+    lut, weights = _NO_LUT, _NO_WEIGHTS
     for k, (name, p) in enumerate(run):
         if name == "sensor_noise":
             fpar[k, :2] = p.shot, p.read

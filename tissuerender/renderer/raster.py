@@ -11,18 +11,17 @@ from tissuerender.renderer.camera import camera_basis
 
 
 @njit(cache=True, parallel=True)
-def rasterize(sx, sy, zv, tris, width, height, near, depth, tri_id, bary, bands=1, jitter=None):
+def rasterize(sx, sy, zv, tris, width, height, near, depth, tri_id, bary, bands, jittered, offsets):
     """Z-buffer raster of triangles with screen positions ``sx, sy`` and view depths ``zv``.
 
     Writes per pixel the nearest view depth, the triangle id and perspective-correct barycentrics
     (weights ``b_i / z_i`` renormalised). Triangles with a vertex in front of ``near`` are skipped.
     The image is split into horizontal bands rasterised in parallel; each band visits the triangles in
     the same order, so every pixel gets the same result as a serial raster (ties keep the first).
-    ``jitter`` (H, W, 2) moves each pixel's sample from the centre to ``(i, j) + jitter[j, i]`` (offsets
-    in [0, 1), ``jitter_offsets``); None samples the centres.
+    With ``jittered``, ``offsets`` (H, W, 2) moves each pixel's sample from the centre to
+    ``(i, j) + offsets[j, i]`` (in [0, 1), ``jitter_offsets``); without, the centres are sampled and ``offsets``
+    is not read. (Always an array, never None: one numba signature, one compile.)
     """
-    jittered = jitter is not None
-    offsets = jitter if jitter is not None else np.full((1, 1, 2), 0.5, np.float32)
     bands = max(1, min(height, bands))
     for band in prange(bands):
         row0 = band * height // bands
@@ -126,18 +125,22 @@ def project(points: np.ndarray, camera, width: int, height: int):
     return sx, sy, zv
 
 
+_CENTRES = np.full((1, 1, 2), 0.5, np.float32)  # the offsets argument when pixels sample their centres
+
+
 def rasterize_objects(points: np.ndarray, triangles: np.ndarray, camera, width: int, height: int,
                       jitter_seed: int = -1):
     """(depth (H, W) view depth or inf, triangle id (H, W) or -1, perspective-correct barycentrics (H, W, 3));
     ``jitter_seed`` >= 0: each pixel samples a seeded uniform point of itself (-1: pixel centres)."""
-    jitter = jitter_offsets(jitter_seed, height, width) if jitter_seed >= 0 else None
+    jittered = jitter_seed >= 0
+    offsets = jitter_offsets(jitter_seed, height, width) if jittered else _CENTRES
     sx, sy, zv = project(points, camera, width, height)
     depth = np.full((height, width), np.inf)
     tri_id = np.full((height, width), -1, np.int64)
     bary = np.zeros((height, width, 3))
     if triangles.shape[0]:
         rasterize(sx, sy, zv, triangles, width, height, float(camera.near), depth, tri_id, bary,
-                  4 * numba.get_num_threads(), jitter)
+                  4 * numba.get_num_threads(), jittered, offsets)
     far = depth > camera.far
     depth[far], tri_id[far] = np.inf, -1
     return depth, tri_id, bary

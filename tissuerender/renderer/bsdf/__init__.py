@@ -46,6 +46,10 @@ def bsdf_for(optics):
     return make_bsdf(bsdf_name(optics), optics)
 
 
+_NO_SCHLICK = np.zeros((2, 2, 2))
+_NO_SCHLICK.setflags(write=False)
+
+
 def kernel_tables(bsdfs, optics):
     """Per-material parameters for the numba shading pass (``shade_kernel.shade_direct``), indexed by the
     G-buffer's material id."""
@@ -66,6 +70,7 @@ def kernel_tables(bsdfs, optics):
 
     tables["plastic_t"] = np.ascontiguousarray(np.stack(tables["plastic_t"]))
     # the tissue lobe's albedo tables, needed (and computed, once per process) only under a wet coat
-    E = schlick_tables()[0] if any(b.kind == KIND_LAYERED for b in bsdfs) else np.zeros((2, 2, 2))
+    # (the placeholder is read-only like the cached table, so shade_direct has one numba signature: one compile)
+    E = schlick_tables()[0] if any(b.kind == KIND_LAYERED for b in bsdfs) else _NO_SCHLICK
     return dict(tables, schlick_E=E, f0=column("f0"), k_sss=column("k_sss"), sigma=column("sigma", 3),
                 sss_colour=column("sss_colour", 3))
