@@ -162,7 +162,10 @@ def model_params(model):
     """(name, mu, lam, eta, a0) of a :class:`sim.model.Model`."""
     eta = a0 = None
     if model.constitutive == "anisotropic_neo_hookean":
-        eta = np.broadcast_to(np.asarray(model.material_params.get("eta", 2.0 * model.mu), float), model.mu.shape)
+        # a writable copy, never broadcast_to's read-only view: the numba kernels then see one array type
+        # (one compile) whether eta was given per element or derived from mu
+        eta = np.array(np.broadcast_to(np.asarray(model.material_params.get("eta", 2.0 * model.mu), float),
+                                       model.mu.shape))
         a0 = model.fibre if model.fibre is not None else np.tile([0.0, 0.0, 1.0], (model.n_tets, 1))
     return model.constitutive, model.mu, model.lam, eta, a0
 

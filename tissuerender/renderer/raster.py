@@ -174,7 +174,7 @@ def _interpolate(P, N, T, tri_id, bary, jj, ii, cam, pos, nrm, wo, tri):
 def interpolate_gbuffer(points, normals, triangles, tri_id, bary, camera_position):
     """Per covered pixel (row-major order): pixel rows and columns, world position, unit shading normal
     turned towards the viewer, unit direction to the camera, and the triangle id."""
-    jj, ii = np.nonzero(tri_id >= 0)
+    jj, ii = (np.ascontiguousarray(a) for a in np.nonzero(tri_id >= 0))  # C arrays: one numba signature
     k = jj.size
     pos, n, wo = np.empty((k, 3)), np.empty((k, 3)), np.empty((k, 3))
     tri = np.empty(k, np.int64)
