@@ -21,7 +21,6 @@ from typing import Annotated
 import numpy as np
 from numba import njit, prange
 from pydantic import Field, field_validator
-from scipy.interpolate import PchipInterpolator
 
 from postfx.effect import Effect, EffectParams, Pointwise, image_only
 from postfx.kernels import LUMA
@@ -69,6 +68,8 @@ LUT_SIZE = 1024
 
 def _monotone_curve(points):
     pts = np.asarray(points, dtype=np.float64)
+    from scipy.interpolate import PchipInterpolator  # here, not at import: scipy.interpolate adds ~1 s to start-up
+
     spline = PchipInterpolator(pts[:, 0], pts[:, 1], extrapolate=False)
     return lambda x: np.where(x <= pts[0, 0], pts[0, 1], np.where(x >= pts[-1, 0], pts[-1, 1], spline(x)))
 

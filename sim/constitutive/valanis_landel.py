@@ -21,7 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import make_interp_spline
 
 
 def _spline(points):
@@ -31,6 +30,8 @@ def _spline(points):
     if np.any(np.diff(pts[:, 0]) <= 0) or np.any(pts[:, 0] <= 0):
         raise ValueError(f"curve x values (stretches) must be positive and strictly increasing, found {pts[:, 0].tolist()}")
     k = min(3, pts.shape[0] - 1)
+    from scipy.interpolate import make_interp_spline  # here: scipy.interpolate costs ~1 s of start-up
+
     return make_interp_spline(pts[:, 0], pts[:, 1], k=k)
 
 
