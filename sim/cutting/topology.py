@@ -15,11 +15,70 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from sim.mesh.surface import TET_FACES
 from sim.model import Model
 
 _EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
+
+
+@njit(cache=True)
+def split_fans(edges, tets, alive, node_start, node_tets, drop):
+    """For each edge (u, v) of ``edges`` (k, 2): group the ``alive`` tets around it into arcs (joined when two share a
+    face containing the edge, i.e. a third node) and mark in ``drop`` the tets of every arc but the largest (ties:
+    the arc holding the lowest tet id stays). ``node_tets[node_start[i]:node_start[i + 1]]``: the tets of node i."""
+    for e in range(edges.shape[0]):
+        u, v = edges[e, 0], edges[e, 1]
+        degree = node_start[u + 1] - node_start[u]
+        fan = np.empty(degree, np.int64)
+        parent = np.empty(degree, np.int64)
+        size = np.empty(degree, np.int64)
+        lowest = np.empty(degree, np.int64)
+        n = 0
+        for p in range(node_start[u], node_start[u + 1]):
+            t = node_tets[p]
+            if alive[t] and (tets[t, 0] == v or tets[t, 1] == v or tets[t, 2] == v or tets[t, 3] == v):
+                fan[n] = t
+                n += 1
+        if n < 2:
+            continue
+        for i in range(n):
+            parent[i] = i
+        for i in range(n):
+            for j in range(i + 1, n):
+                joined = False
+                for a in range(4):
+                    x = tets[fan[i], a]
+                    if x == u or x == v:
+                        continue
+                    for b in range(4):
+                        if tets[fan[j], b] == x:
+                            joined = True
+                if joined:
+                    ri, rj = i, j
+                    while parent[ri] != ri:
+                        ri = parent[ri]
+                    while parent[rj] != rj:
+                        rj = parent[rj]
+                    parent[ri] = rj
+        for i in range(n):
+            size[i] = 0
+            lowest[i] = np.iinfo(np.int64).max
+        for i in range(n):
+            r = i
+            while parent[r] != r:
+                r = parent[r]
+            parent[i] = r
+            size[r] += 1
+            lowest[r] = min(lowest[r], fan[i])
+        best = -1
+        for i in range(n):
+            if parent[i] == i and (best < 0 or size[i] > size[best] or (size[i] == size[best] and lowest[i] < lowest[best])):
+                best = i
+        for i in range(n):
+            if parent[i] != best:
+                drop[fan[i]] = True
 
 
 @dataclass
@@ -84,31 +143,6 @@ class CutTopology:
         """Original ids of the remaining tets (the model's tet k is original tet ``ids()[k]``)."""
         return np.flatnonzero(self.alive)
 
-    def _fan(self, u: int, v: int) -> list[int]:
-        a = self.node_tets[self.node_start[u]:self.node_start[u + 1]]
-        b = self.node_tets[self.node_start[v]:self.node_start[v + 1]]
-        return [int(t) for t in np.intersect1d(a, b) if self.alive[t]]
-
-    def _arcs(self, u: int, v: int, fan: list[int]) -> list[list[int]]:
-        """The fan's tets grouped into arcs: joined when they share a face containing the edge u-v."""
-        parent = list(range(len(fan)))
-
-        def root(i):
-            while parent[i] != i:
-                parent[i] = parent[parent[i]]
-                i = parent[i]
-            return i
-
-        others = [set(self.tets[t].tolist()) - {u, v} for t in fan]
-        for i in range(len(fan)):
-            for j in range(i + 1, len(fan)):
-                if others[i] & others[j]:
-                    parent[root(i)] = root(j)
-        groups: dict[int, list[int]] = {}
-        for i, t in enumerate(fan):
-            groups.setdefault(root(i), []).append(t)
-        return list(groups.values())
-
     def remove(self, ids: np.ndarray) -> np.ndarray:
         """Remove the original tets ``ids`` and those the manifold rule adds (module docstring); returns every
         original id removed now, sorted."""
@@ -119,18 +153,9 @@ class CutTopology:
         work = ids
         while work.size:
             edges = np.unique(np.sort(self.tets[work][:, _EDGES].reshape(-1, 2), axis=1), axis=0)
-            more = []
-            for u, v in edges.tolist():
-                fan = self._fan(u, v)
-                if len(fan) < 2:
-                    continue
-                arcs = self._arcs(u, v, fan)
-                if len(arcs) > 1:
-                    arcs.sort(key=lambda arc: (-len(arc), min(arc)))
-                    for arc in arcs[1:]:
-                        more += arc
-            work = np.unique(np.array(more, dtype=np.int64))
-            work = work[self.alive[work]]
+            drop = np.zeros(self.alive.size, dtype=np.bool_)
+            split_fans(edges, self.tets, self.alive, self.node_start, self.node_tets, drop)
+            work = np.flatnonzero(drop & self.alive)
             self.alive[work] = False
             removed.append(work)
         removed = np.unique(np.concatenate(removed))

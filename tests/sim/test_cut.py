@@ -47,17 +47,22 @@ def _components(tets: np.ndarray, n_nodes: int) -> int:
     return int(np.unique(label[np.unique(tets)]).size)
 
 
+def _meets(a, b, radius, corners) -> bool:
+    return capsule_meets_tet(tuple(map(float, a)), tuple(map(float, b)), radius,
+                             tuple(tuple(map(float, c)) for c in corners))
+
+
 def test_capsule_tet_test_is_exact_at_the_radius():
     corners = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     # a segment parallel to the face x + y + z = 1 at distance d from it, beyond the tet
     n = np.ones(3) / np.sqrt(3.0)
     a, b = np.array([0.3, 0.3, 0.4]) + 0.1 * n, np.array([0.4, 0.3, 0.3]) + 0.1 * n
-    assert capsule_meets_tet(a, b, 0.1 + 1e-12, corners) and not capsule_meets_tet(a, b, 0.1 - 1e-12, corners)
+    assert _meets(a, b, 0.1 + 1e-12, corners) and not _meets(a, b, 0.1 - 1e-12, corners)
     # a segment passing through the tet, its ends outside, radius 0: found by the clipping
-    assert capsule_meets_tet(np.array([0.2, 0.2, -1.0]), np.array([0.2, 0.2, 1.0]), 0.0, corners)
+    assert _meets(np.array([0.2, 0.2, -1.0]), np.array([0.2, 0.2, 1.0]), 0.0, corners)
     # skew to an edge: the edge x-axis [0, 1] and a segment along y at (0.5, ., -0.3): distance 0.3
     a, b = np.array([0.5, -1.0, -0.3]), np.array([0.5, 1.0, -0.3])
-    assert capsule_meets_tet(a, b, 0.3 + 1e-12, corners) and not capsule_meets_tet(a, b, 0.3 - 1e-12, corners)
+    assert _meets(a, b, 0.3 + 1e-12, corners) and not _meets(a, b, 0.3 - 1e-12, corners)
 
 
 def test_a_cut_through_a_bar_leaves_two_pieces_with_the_volume_and_mass_of_the_tets_kept():
