@@ -19,6 +19,9 @@ sweeps), then the nodes held in some components only are projected back onto the
 exerted on each probe over the last step (minus the contact impulses over the step, ``sim.probe``). The ``jacobi`` solver averages the corrections of all
 tets per iteration (with relaxation) instead.
 
+Cuts (``sim.cutting``): at the start of a substep the tets an active blade sweeps through are removed and the
+per-tet data rebuilt on the rest (:meth:`XPBD.remove_tets`); a cutting tool's blade pushes no tissue.
+
 Strain limits on Green-strain entries in a material frame (Qian 4.21–4.22, stretch and shear,
 unilateral or held) are projected after every sweep (``sim.integrators.xpbd.strain``). Prony viscoelasticity
 (Zhang 5.29–5.32) adds one constraint set per Prony term whose rest shape drifts towards the current
@@ -200,6 +203,9 @@ class XPBD:
             self.branches.Dm_inv = np.ascontiguousarray(self.model.Dm_inv[order])
             self.branches.Fv = np.ascontiguousarray(self.branches.Fv[:, kept])
         self._build_tets(order, colour_start)
+        for grasp in self.grasps:  # a grasped node left in no tet has no mass to hold: it lets go
+            if grasp.nodes.size:
+                grasp.detach(self.w[grasp.nodes] == 0.0)
 
     def step(self, state: State, dt: float) -> State:
         m = self.model
