@@ -8,6 +8,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from sim.constitutive import tensor
+from sim.contact import Grasp
 from sim.cutting import Cut
 from sim.cutting.surface import cut_surfaces
 from sim.cutting.sweep import capsule_meets_tet
@@ -19,9 +20,10 @@ from sim.probe import Probe
 LENGTH, SIDE = 0.2, 0.04
 
 
-def _cut_bar(gravity=(0.0, 0.0, 0.0), steps=8):
+def _cut_bar(gravity=(0.0, 0.0, 0.0), steps=8, grasp=False):
     """A 20 x 4 x 4 cm bar (10 x 2 x 2 cells, 240 tets) clamped at both ends, cut through at x = 0.101 m by a
-    capsule blade (radius 2 mm, along y, longer than the bar is wide) moving down through it in 0.08 s."""
+    capsule blade (radius 2 mm, along y, longer than the bar is wide) moving down through it in 0.08 s; with
+    ``grasp``, a still sphere (radius 0.1 mm) holds the nodes within 2.1 cm of the bar's centre from t = 0."""
     mesh = procedural.box((LENGTH, SIDE, SIDE), (10, 2, 2))
     model = Model.from_mesh(mesh, E=1e5, nu=0.4, density=1000.0, gravity=np.asarray(gravity, dtype=np.float64))
     model.fixed[(mesh.points[:, 0] < 1e-9) | (mesh.points[:, 0] > LENGTH - 1e-9)] = True
@@ -29,6 +31,9 @@ def _cut_bar(gravity=(0.0, 0.0, 0.0), steps=8):
                   axis=[0.0, 1.0, 0.0], length=0.1)
     model.probes = [blade]
     model.cuts = [Cut(probe=0, t_start=0.0, t_end=0.08)]
+    if grasp:
+        model.probes.append(Probe(kind="sphere", radius=1e-4, times=[0.0], positions=[[0.1, 0.02, 0.02]]))
+        model.grasps = [Grasp(probe=1, t_close=0.0, t_release=10.0, radius=0.021)]
     original = Model.from_mesh(mesh, E=1e5, nu=0.4, density=1000.0)
     integrator = XPBD(model, {"substeps": 5, "iterations": 5})
     state = State.at_rest(model)
@@ -98,6 +103,16 @@ def test_no_tet_inverts_after_the_cut_and_under_gravity_after_it():
     assert state.x[:, 2][np.unique(model.tets)].min() < -1e-4
     orphans = np.setdiff1d(np.arange(model.n_nodes), model.tets)
     assert np.all(state.v[orphans] == 0.0)
+
+
+def test_grasped_nodes_the_cut_leaves_in_no_tet_let_go():
+    mesh, _, model, integrator, state = _cut_bar(grasp=True)
+    # grasped at t = 0: the bar's centre node (0.1, 0.02, 0.02), its 4 neighbours in the plane x = 0.1 and the 2 at
+    # x = 0.08 and 0.12 (2 cm away); the cut leaves the plane's nodes in no tet (massless: a rigid attachment would
+    # divide by their zero inverse mass), so they let go, and the two off the plane stay held
+    assert integrator.grasps[0].closed and np.isfinite(state.x).all()
+    held = mesh.points[integrator.grasps[0].nodes]
+    np.testing.assert_allclose(held, [[0.08, 0.02, 0.02], [0.12, 0.02, 0.02]], atol=1e-12)
 
 
 def test_the_render_surface_is_closed_and_manifold_with_the_cut_faces_apart():
