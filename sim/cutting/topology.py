@@ -103,7 +103,7 @@ def boundary_of(tets: np.ndarray, n_nodes: int) -> tuple[np.ndarray, np.ndarray]
     """The faces (k, 3) used by exactly one of ``tets``, outward oriented (``TET_FACES``), and their keys."""
     faces = tets[:, TET_FACES].reshape(-1, 3)
     keys = face_keys(faces, n_nodes)
-    unique, first, counts = np.unique(keys, return_index=True, return_counts=True)
+    _, first, counts = np.unique(keys, return_index=True, return_counts=True)
     once = first[counts == 1]
     once.sort()  # in tet order: deterministic
     return faces[once], keys[once]
@@ -130,6 +130,8 @@ class CutTopology:
     def __init__(self, model: Model):
         self.tets = np.ascontiguousarray(model.tets, dtype=np.int64)
         self.n_nodes = model.n_nodes
+        if self.n_nodes >= 2 ** 21:  # face_keys packs three node ids into one int64
+            raise ValueError(f"cutting supports bodies of fewer than 2**21 nodes, found {self.n_nodes}")
         self.alive = np.ones(self.tets.shape[0], dtype=bool)
         node_of = self.tets.ravel()
         order = np.argsort(node_of, kind="stable")
