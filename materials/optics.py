@@ -243,6 +243,11 @@ OPTICS: dict[str, OpticalMaterial] = {
     # Lambertian base, no subsurface term (tissuerender.renderer.bsdf.plastic).
     "plastic": OpticalMaterial(albedo=(0.55, 0.55, 0.58), roughness=0.25, ior=1.49, k_sss=0.0,
                                sigma=(1.0, 1.0, 1.0), sss_colour=(0.0, 0.0, 0.0), bsdf="roughplastic"),
+    # Freshly cut parenchyma (the faces a cut exposes, tissuerender.scene.cut_schema; not a body material): no
+    # serosa, blood and tissue fluid on the cut: darker than liver's surface (exposed, blood-filled sinusoids
+    # absorb green and blue [Jacques13]) and wet (a smooth liquid film: low roughness, water-like IOR). Design values.
+    "tissue_cut": OpticalMaterial(albedo=(0.15, 0.025, 0.02), roughness=0.12, ior=1.36, k_sss=0.3,
+                                  sigma=(1000.0, 4000.0, 5000.0), sss_colour=(0.4, 0.04, 0.03)),
     # Instruments (tools only, not a body material): stainless steel as the tissue BSDF's GGX lobe with
     # Schlick F0 = 0.533, the conductor reflectance of n + ik = 2.9 + 3.1i at normal incidence
     # (tissuerender.instruments.STEEL_F0), no diffuse or subsurface light; brushed: roughness 0.2.

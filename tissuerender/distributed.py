@@ -196,6 +196,10 @@ def render_distributed(scene: Scene, out_dir, resume: bool = False, progress: bo
     after frame ``k`` is recorded. A frame that cannot be rendered because its workers died is reported, after
     every other frame is finished, as a UserError naming the missing frames (``--resume`` renders them)."""
     run_start = time.time()
+    cutting = [i for i, t in enumerate(scene.tools) if t.cut]
+    if cutting:  # a frame task rebuilds the world from a state file, which holds positions, not the cut topology
+        raise UserError(f"{scene.path}: tools[{cutting[0]}].cut: frames rendered as Dask tasks (--workers, --scheduler) "
+                        "do not follow a cut yet; render this scene without them")
     seq = pipeline.start_sequence(scene, out_dir, resume, frames)
     seq.extra = {"executor": {"kind": "dask", "scheduler": scheduler or ("client" if client else "local"),
                               "workers": workers}}

@@ -17,6 +17,7 @@ from tissuerender.plan import Plan
 from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings
 from tissuerender.scene import Scene
 from tissuerender.scene.camera_schema import degenerate_view
+from tissuerender.scene.cut_schema import CUT_MATERIAL, cut_optics
 from tissuerender.stages import StageRecorder
 from tissuerender.world import World, make_probe
 
@@ -162,6 +163,7 @@ def render_objects(world: World, scene: Scene, t: float, plan: Plan, recorder: S
         velocity = None
         if "velocity_channel" in plan:
             prev = previous.get(body.spec.name, pts) if previous else pts
+            prev = prev if prev.shape == pts.shape else pts  # a cut changed the surface (tissuerender.world)
             velocity = (pts - prev) * scene.output.fps
         positions[body.spec.name] = pts
         objects.append(RenderObject(points=pts, triangles=body.surface.triangles, normals=normals,
@@ -183,4 +185,23 @@ def render_objects(world: World, scene: Scene, t: float, plan: Plan, recorder: S
                                         material="steel" if steel else "plastic", object_id=oid, velocity=vel,
                                         optics=materials.optics.OPTICS["steel"] if steel else None, name=tool.name))
             oid += 1
+    objects += cut_objects(world, plan, oid)  # after the tools: every other object keeps its id
     return objects, positions
+
+
+def cut_objects(world: World, plan: Plan, first_id: int) -> list:
+    """The faces cuts exposed (``world.cut_faces``), one render object per cut body after every other object, drawn
+    with the body's ``cut_material`` (docs/interaction.md, "Cutting"); velocities zero."""
+    objects = []
+    for i in sorted(world.cut_faces):
+        faces, _ = world.cut_faces[i]
+        if not faces.triangles.size:
+            continue
+        spec = world.bodies[i].spec
+        pts = world.states[i].x[faces.vertex_map]
+        material = spec.cut_material or CUT_MATERIAL
+        objects.append(RenderObject(points=pts, triangles=faces.triangles, normals=vertex_normals(pts, faces.triangles),
+                                    uv=faces.uv, material=material, object_id=first_id + len(objects),
+                                    velocity=np.zeros_like(pts) if "velocity_channel" in plan else None,
+                                    optics=cut_optics(material), name=f"{spec.name} (cut)"))
+    return objects

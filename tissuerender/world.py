@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from sim import integrators  # called through the module, so tests can replace make_integrator
+from sim.cutting.surface import cut_surfaces
 from sim.errors import SimulationDiverged
 from sim.model import State
 from sim.probe import Probe
@@ -38,6 +39,9 @@ class World:
     # interval, summed over bodies; NaN where a body's integrator reports no contact forces (only xpbd does)
     tool_loads: np.ndarray | None = None
     # then one row per body with a floor (objects.floor, ``floor_names``): force and torque about its point on it
+    # body index -> the faces a cut exposed (sim.cutting.surface), drawn with the body's cut_material; the body's own
+    # render surface is then the rest of its tets' boundary (update_cut_surfaces)
+    cut_faces: dict = field(default_factory=dict)
 
 
 def build_world(scene: Scene, plan: Plan, recorder: StageRecorder) -> World:
@@ -61,6 +65,7 @@ def build_world(scene: Scene, plan: Plan, recorder: StageRecorder) -> World:
             body.model.probes = list(probes)
             body.model.grasps = list(grasps)  # sim.contact, xpbd only (interaction_schema.check_interaction)
             body.model.contact_planes = [] if body.spec.floor is None else [body.spec.floor.to_sim()]
+            body.model.cuts = [c.to_sim(k, t.kind) for k, t in enumerate(scene.tools) for c in t.cut] if probes else []
             try:
                 world.integrators.append(integrators.make_integrator(sim.integrator, body.model, settings))
             except (NotImplementedError, ValueError) as e:
@@ -124,9 +129,21 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
                         f"produced non-finite positions at {int(bad.sum())} of {bad.size} nodes (first: node "
                         f"{int(np.flatnonzero(bad)[0])}) at t = {state.t:.4g} s. Try a smaller simulation.dt or more substeps.")
             floor_row += has_floor
+            update_cut_surfaces(world, i)
     world.frames_advanced = f + 1
     if loads is not None:
         world.tool_loads = loads
+
+
+def update_cut_surfaces(world: World, i: int) -> None:
+    """After body ``i``'s integrator removed tets (``sim.cutting``): its mesh, render surface and embedding become
+    the remaining tets and the original part of their boundary, ``world.cut_faces[i]`` the faces the cut exposed."""
+    cutter = getattr(world.integrators[i], "cutter", None)
+    if cutter is None or cutter.revision in (0, world.cut_faces.get(i, (None, 0))[1]):
+        return
+    body = world.bodies[i]
+    body.mesh, body.surface, body.embedding, faces = cut_surfaces(cutter.topology, body.model.X, body.mesh.source)
+    world.cut_faces[i] = (faces, cutter.revision)
 
 
 TOOL_FORCES_CSV = "tool_forces.csv"

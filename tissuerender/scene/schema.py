@@ -22,6 +22,7 @@ from sim.integrators.xpbd.settings import XPBDSceneSettings
 
 from tissuerender.scene.camera_schema import CameraKeyframe, CameraLens, check_path, degenerate_view
 from tissuerender.scene.bc_schema import HeldComponents
+from tissuerender.scene.cut_schema import CUT_MATERIALS, CutSpec
 from tissuerender.scene.interaction_schema import FloorSpec, GraspSpec
 from tissuerender.scene.optics_schema import LayerOverride
 from tissuerender.scene.shapes import SHAPES
@@ -170,6 +171,9 @@ class ObjectSpec(Strict):
     prescribed: list[Prescribed] = Field([], description="body: regions moved by a displacement ramp (table below)")
     tractions: list[Traction] = Field([], description="body: regions loaded by a constant traction (table below)")
     floor: FloorSpec | None = Field(None, description="body: a static plane it rests on, with friction (xpbd; table below)")
+    cut_material: Literal[CUT_MATERIALS] | None = Field(None, description=(  # type: ignore[valid-type]
+        "body: the preset the faces a tool's cut exposes are drawn with (default tissue_cut: darker, wetter "
+        "parenchyma; docs/interaction.md, \"Cutting\")"))
     paint: Annotated[list[PaintStroke], Field(max_length=1000)] = Field([], description=(
         "body: heterogeneous stiffness, poly6 strokes (Qian 4.26-4.28; table below)"))
 
@@ -235,6 +239,9 @@ class Tool(Strict):
         "path, linearly interpolated, times strictly increasing (table below)"))]
     grasp: Annotated[list[GraspSpec], Field(max_length=100)] = Field([], description=(
         "jaws closing on the tissue and opening again (xpbd; table below; docs/interaction.md)"))
+    cut: Annotated[list[CutSpec], Field(max_length=100)] = Field([], description=(
+        "time windows in which the tool's blade removes the body tets it sweeps through (xpbd; table below; "
+        "docs/interaction.md, \"Cutting\")"))
 
     @model_validator(mode="after")
     def _ordered(self):

@@ -13,6 +13,7 @@ import materials
 from sim.integrators import REGISTRY
 from sim.mesh.io import is_surface_file
 from tissuerender.errors import SceneError
+from tissuerender.scene.cut_schema import check_cut
 from tissuerender.scene.interaction_schema import check_interaction
 
 # [effects] keys that act only through another switch: key -> (the switch, what the key does)
@@ -32,7 +33,8 @@ def _set(model) -> set[str]:
 
 def check_every_option_has_an_effect(scene) -> None:
     """Raise :class:`SceneError` naming the first key of ``scene`` (a ``load.Scene``) that would have no effect."""
-    for check in (_objects, _simulation, _tools, _camera, _light, _effects, _output, check_interaction):
+    for check in (_objects, _simulation, _tools, _camera, _light, _effects, _output, check_interaction,
+                  check_cut):
         problem = check(scene)
         if problem is not None:
             key, message = problem

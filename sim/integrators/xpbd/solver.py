@@ -19,6 +19,9 @@ sweeps), then the nodes held in some components only are projected back onto the
 exerted on each probe over the last step (minus the contact impulses over the step, ``sim.probe``). The ``jacobi`` solver averages the corrections of all
 tets per iteration (with relaxation) instead.
 
+Cuts (``sim.cutting``): at the start of a substep the tets an active blade sweeps through are removed and the
+per-tet data rebuilt on the rest (:meth:`XPBD.remove_tets`); a cutting tool's blade pushes no tissue.
+
 Strain limits on Green-strain entries in a material frame (Qian 4.21–4.22, stretch and shear,
 unilateral or held) are projected after every sweep (``sim.integrators.xpbd.strain``). Prony viscoelasticity
 (Zhang 5.29–5.32) adds one constraint set per Prony term whose rest shape drifts towards the current
@@ -38,6 +41,7 @@ from sim.integrators.xpbd.prony import MaxwellBranches
 from sim.integrators.xpbd.settings import XPBDSettings, limit_boxes
 from sim.integrators.xpbd.strain import GreenStrainLimits
 from sim.contact import GraspState, PlaneState
+from sim.cutting import Cutter
 from sim.model import Model, State
 from sim.probe import resolve_contact_load
 
@@ -144,14 +148,28 @@ class XPBD:
             domain_colour.append(len(colours))
         self.domain_colour = np.array(domain_colour, dtype=np.int64)
         order = np.concatenate(colours).astype(np.int64)
+        colour_start = np.concatenate([[0], np.cumsum([c.size for c in colours])]).astype(np.int64)
+        prony = m.material_params.get("prony")
+        self.branches = MaxwellBranches(prony, np.ascontiguousarray(m.tets[order], dtype=np.int64),
+                                        np.ascontiguousarray(m.Dm_inv[order])) if prony else None
+        self.kinematic = m.kinematic()
+        self.partial = m.partial()  # nodes held in some components: projected onto their constraint after each sweep
+        self._build_tets(order, colour_start)
+        # grasps and static contact planes (sim.contact), optional attributes of the model
+        self.grasps = [GraspState(g, m.probes[g.probe]) for g in getattr(m, "grasps", ())]
+        self.planes = [PlaneState(p, m.n_nodes) for p in getattr(m, "contact_planes", ())]
+        # cuts (sim.cutting), an optional attribute of the model: tets removed at the start of a substep
+        self.cutter = Cutter(m) if getattr(m, "cuts", ()) else None
+
+    def _build_tets(self, order: np.ndarray, colour_start: np.ndarray) -> None:
+        """Everything per tet or per mass, from the model's tets in colour order ``order`` (ranges ``colour_start``)."""
+        m, settings = self.model, self.settings
         self.tet_order = order
-        self.colour_start = np.concatenate([[0], np.cumsum([c.size for c in colours])]).astype(np.int64)
+        self.colour_start = colour_start
         self.tets = np.ascontiguousarray(m.tets[order], dtype=np.int64)
         self.w = m.inverse_mass()
         # constraint sets: the body's tets (long-term weight 1 - sum a_i with Prony terms), then one
         # set per Prony branch (sim.integrators.xpbd.prony)
-        prony = m.material_params.get("prony")
-        self.branches = MaxwellBranches(prony, self.tets, np.ascontiguousarray(m.Dm_inv[order])) if prony else None
         self.sets = [TetConstraints(self, weight_B[1], weight_B[0]) for weight_B in (
             self.branches.sets() if self.branches is not None else [(1.0, m.Dm_inv[order])])]
         base = self.sets[0]
@@ -166,14 +184,28 @@ class XPBD:
                 np.stack([np.einsum("mij,mj->mi", m.Dm_inv, a) for a in axes], axis=1)[order])
         self.green_limits = (GreenStrainLimits(m, order, self.colour_start, settings)
                              if limit_boxes(settings) is not None else None)
-        self.kinematic = m.kinematic()
-        self.partial = m.partial()  # nodes held in some components: projected onto their constraint after each sweep
         counts = np.bincount(self.tets.ravel(), minlength=m.n_nodes).astype(np.float64)
-        self.tet_scale = self.relaxation / counts[self.tets].max(axis=1)
+        self.tet_scale = self.relaxation / counts[self.tets].max(axis=1) if self.tets.size else np.zeros(0)
         self.f_ext_acc = m.nodal_external_force() * np.where(self.w > 0, self.w, 0.0)[:, None]
-        # grasps and static contact planes (sim.contact), optional attributes of the model
-        self.grasps = [GraspState(g, m.probes[g.probe]) for g in getattr(m, "grasps", ())]
-        self.planes = [PlaneState(p, m.n_nodes) for p in getattr(m, "contact_planes", ())]
+
+    def remove_tets(self, keep: np.ndarray) -> None:
+        """The model has just kept only its tets ``keep`` (mask over its previous tets, ``sim.cutting``): filter
+        the colour order (a colouring stays one when tets are removed, so no recolouring; the domains' interiors
+        still share no node), the Prony branches' state, and rebuild the per-tet constraints and inverse masses."""
+        new_id = np.cumsum(keep) - 1
+        kept = keep[self.tet_order]  # per colour-order position
+        colour = np.repeat(np.arange(self.colour_start.size - 1), np.diff(self.colour_start))
+        counts = np.bincount(colour[kept], minlength=self.colour_start.size - 1)
+        colour_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        order = new_id[self.tet_order[kept]].astype(np.int64)
+        if self.branches is not None:
+            self.branches.tets = np.ascontiguousarray(self.model.tets[order], dtype=np.int64)
+            self.branches.Dm_inv = np.ascontiguousarray(self.model.Dm_inv[order])
+            self.branches.Fv = np.ascontiguousarray(self.branches.Fv[:, kept])
+        self._build_tets(order, colour_start)
+        for grasp in self.grasps:  # a grasped node left in no tet has no mass to hold: it lets go
+            if grasp.nodes.size:
+                grasp.detach(self.w[grasp.nodes] == 0.0)
 
     def step(self, state: State, dt: float) -> State:
         m = self.model
@@ -192,6 +224,11 @@ class XPBD:
         plane_loads = np.zeros((len(self.planes), 6))
         for _ in range(self.substeps):
             t_next = t + h
+            if self.cutter is not None:  # the blades remove the tets they sweep through over this substep
+                keep = self.cutter.sweep(x, t, t_next)
+                if keep is not None:
+                    self.remove_tets(keep)
+                    v[self.model.mass == 0.0] = 0.0  # orphan nodes (in no tet) stay where they are
             x_prev = x.copy()
             x += h * v + h * h * self.f_ext_acc
             x[self.kinematic.nodes] = self.kinematic.at(t_next)
@@ -210,6 +247,7 @@ class XPBD:
                     w_tools[grasp.nodes] = 0.0
             for plane in self.planes:
                 plane.reset()
+            probes = m.probes if self.cutter is None else self.cutter.contact_probes(m.probes, t, t_next)
             for _ in range(self.iterations // per_call):
                 for constraints in self.sets:
                     constraints.sweeps(x, inv_dt2, per_call)
@@ -218,7 +256,7 @@ class XPBD:
                                          self.colour_start)
                 if self.green_limits is not None:
                     self.green_limits.project(x, self.w, inv_dt2)
-                for k, probe in enumerate(m.probes):
+                for k, probe in enumerate(probes):
                     substep_load[:] = 0.0
                     resolve_contact_load(x, probe, t_next, w_tools, substep_load)
                     loads[k] += substep_load

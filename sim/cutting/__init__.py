@@ -1,0 +1,111 @@
+"""Cutting (issue 21 item 3; Qian §5.3): a tool's blade removes the tets it sweeps through while its cut is active.
+
+Qian's dissection is topology-unchanged: no node or element is created, elements are taken out and the renderer
+is fed only the faces still in use. Here, likewise, a tet the blade meets is removed whole
+(``sim.cutting.sweep``: exact capsule–tet tests over the blade's positions in each substep), every node keeps its
+index, and the topology is brought up to date at once (``sim.cutting.topology``): the model's per-tet arrays are
+filtered, lumped masses summed again (orphan nodes get mass 0 and drop out of the solve), tets hanging on by an
+edge are removed with them (the boundary stays a closed 2-manifold), and the integrator rebuilds its constraints
+(``sim.integrators.xpbd.solver.XPBD.remove_tets``: removing tets from a graph colouring leaves it a colouring, so
+each colour is filtered, not recomputed). The render surface is then the boundary of the remaining tets, the
+faces the cut exposed drawn with the body's ``cut_material`` (``tissuerender.world``; docs/interaction.md,
+"Cutting"). Not modelled: Qian's heat transfer and shrinkage of the dissected area (§5.3.2–5.3.3), splitting tets
+along the blade (virtual nodes).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sim.cutting.sweep import blade_hits
+from sim.cutting.topology import Cut, CutTopology, filter_model
+from sim.model import Model
+
+__all__ = ["Cut", "CutState", "Cutter", "CutTopology", "filter_model"]
+
+
+class CutState:
+    """One cut's blade: the probe's capsules from ``blade_from`` on, sampled over a substep."""
+
+    def __init__(self, cut: Cut, probe):
+        self.cut = cut
+        self.probe = probe
+
+    def window(self, t: float, t_next: float) -> tuple[float, float] | None:
+        """The part of the substep ``[t, t_next]`` in which the cut is active, or None."""
+        lo, hi = max(t, self.cut.t_start), min(t_next, self.cut.t_end)
+        return (lo, hi) if lo <= hi else None
+
+    def blade(self, t: float) -> list[tuple]:
+        return self.probe.capsules(t)[self.cut.blade_from:]
+
+    def samples(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Capsule ends ``(a, b)`` (k, 3) and radii (k,) at times from ``t0`` to ``t1``, spaced so that each end of
+        every blade capsule moves at most its radius between consecutive samples (``sim.cutting.sweep``)."""
+        first, last = self.blade(t0), self.blade(t1)
+        n = 1
+        for (a0, b0, r), (a1, b1, _) in zip(first, last):
+            travel = max(np.linalg.norm(np.asarray(a1) - a0), np.linalg.norm(np.asarray(b1) - b0))
+            n = max(n, math.ceil(travel / r))
+        times = [t0] if t1 <= t0 else [t0 + (t1 - t0) * i / n for i in range(n)] + [t1]
+        caps = [c for i, time in enumerate(times)
+                for c in (first if i == 0 else last if i == len(times) - 1 else self.blade(time))]
+        a = np.array([c[0] for c in caps], dtype=np.float64).reshape(-1, 3)
+        b = np.array([c[1] for c in caps], dtype=np.float64).reshape(-1, 3)
+        r = np.array([c[2] for c in caps], dtype=np.float64)
+        return a, b, r
+
+
+class Shaft:
+    """A probe seen without its blade (its capsules before ``blade_from``): what still pushes tissue while it cuts."""
+
+    def __init__(self, probe, blade_from: int):
+        self.probe = probe
+        self.blade_from = blade_from
+
+    def position(self, t: float) -> np.ndarray:
+        return self.probe.position(t)
+
+    def capsules(self, t: float) -> list[tuple]:
+        return self.probe.capsules(t)[:self.blade_from]
+
+
+class Cutter:
+    """The cuts acting on one body (``model.cuts``, tools from ``model.probes``) and its :class:`CutTopology`.
+    ``revision`` counts the removals, so a renderer knows when to rebuild the surface."""
+
+    def __init__(self, model: Model):
+        self.model = model
+        self.cuts = [CutState(c, model.probes[c.probe]) for c in getattr(model, "cuts", ())]
+        self.topology = CutTopology(model)
+        self.revision = 0
+
+    def contact_probes(self, probes: list, t: float, t_next: float) -> list:
+        """The probes as they push tissue over the substep ``[t, t_next]``: a tool whose cut is active there pushes
+        with its shaft only; its blade passes through the tissue, removing what it meets, instead of pushing the
+        tissue ahead of it (which would let the tissue slip around the blade uncut)."""
+        probes = list(probes)
+        for cut in self.cuts:
+            if cut.window(t, t_next) is not None:
+                probes[cut.cut.probe] = Shaft(probes[cut.cut.probe], cut.cut.blade_from)
+        return probes
+
+    def sweep(self, x: np.ndarray, t: float, t_next: float) -> np.ndarray | None:
+        """Remove the tets the active blades sweep through over the substep ``[t, t_next]`` at positions ``x``:
+        returns the mask (m,) of the model's tets kept (the model already filtered), None when nothing was cut."""
+        m = self.model
+        hit = np.zeros(m.n_tets, dtype=bool)
+        for cut in self.cuts:
+            window = cut.window(t, t_next)
+            if window is not None:
+                blade_hits(x, m.tets, *cut.samples(*window), hit)
+        if not hit.any():
+            return None
+        ids = self.topology.ids()
+        removed = self.topology.remove(ids[hit])
+        keep = ~np.isin(ids, removed)
+        self.topology.removed_volume += float(m.volume[~keep].sum())
+        filter_model(m, keep)
+        self.revision += 1
+        return keep
