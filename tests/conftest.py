@@ -25,6 +25,19 @@ MINIMAL_SCENE = {
 }
 
 
+def pressed_block_scene(name: str, light: dict, output: dict) -> dict:
+    """MINIMAL_SCENE simulated (xpbd) with a probe pressing the block from t = 0 to 0.2 s, so every frame's
+    state differs and carries to the next; ``light`` updates the light, ``output`` replaces the output table."""
+    scene = copy.deepcopy(MINIMAL_SCENE)
+    scene["scene"] = {"name": name, "seed": 5}
+    scene["simulation"] = {"integrator": "xpbd", "dt": 1 / 24, "substeps": 2, "iterations": 2}
+    scene["tools"] = [{"name": "probe", "radius": 0.015, "keyframes": [
+        {"t": 0.0, "position": [0.05, 0.05, 0.07]}, {"t": 0.2, "position": [0.05, 0.05, 0.02]}]}]
+    scene["light"].update(light)
+    scene["output"] = output
+    return scene
+
+
 @pytest.fixture
 def scene_dict():
     return copy.deepcopy(MINIMAL_SCENE)

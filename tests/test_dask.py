@@ -22,21 +22,13 @@ from tissuerender.checks import check_scene
 from tissuerender.stages import StageRecorder
 from tissuerender.world import advance
 
+from tests.conftest import pressed_block_scene
+
 # Simulated (xpbd and a pressing probe: every frame's state differs), every format and two ground-truth passes,
 # so every kind of file a frame task writes is compared. 64x48, 6 frames: small enough for the CI budget.
-SCENE = {
-    "scene": {"name": "dask", "seed": 5},
-    "objects": [{"name": "block", "kind": "body", "shape": "box", "size": [0.1, 0.1, 0.04], "cell_size": 0.02,
-                 "material": "liver", "fixed": [{"side": "z_min"}]}],
-    "simulation": {"integrator": "xpbd", "dt": 1 / 24, "substeps": 2, "iterations": 2},
-    "tools": [{"name": "probe", "radius": 0.015, "keyframes": [
-        {"t": 0.0, "position": [0.05, 0.05, 0.07]}, {"t": 0.2, "position": [0.05, 0.05, 0.02]}]}],
-    "camera": {"position": [0.0, -0.25, 0.2], "look_at": [0.05, 0.05, 0.02], "fov_deg": 60.0},
-    "light": {"attach": "camera", "size": [0.02, 0.02], "radiance": [3000.0, 3000.0, 3000.0], "samples": 64},
-    "effects": {"tonemap": {}},
-    "output": {"resolution": [64, 48], "frames": 6, "fps": 24.0, "formats": ["png", "hdr_npy", "vtu"],
-               "passes": ["depth", "segmentation"]},
-}
+SCENE = pressed_block_scene("dask", {"samples": 64}, {
+    "resolution": [64, 48], "frames": 6, "fps": 24.0, "formats": ["png", "hdr_npy", "vtu"],
+    "passes": ["depth", "segmentation"]})
 
 
 def _outputs(folder: Path) -> dict[str, bytes]:

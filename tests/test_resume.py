@@ -25,25 +25,15 @@ from tissuerender.render_inputs import render_objects
 from tissuerender.stages import StageRecorder
 from tissuerender.world import advance, build_world
 
+from tests.conftest import pressed_block_scene
+
 TREE = Path(tissuerender.__file__).resolve().parents[1]  # the tree under test, for the subprocesses
 
 # Simulated (xpbd and a pressing probe, so state carries from frame to frame), every format, and slow enough
 # per frame (3x3 supersamples, 128 uniform light samples) that a signal sent when frame 2's PNG appears lands
 # while frame 2's other files are written or frame 3 renders; the assertions hold wherever it lands.
-SCENE = {
-    "scene": {"name": "resume", "seed": 5},
-    "objects": [{"name": "block", "kind": "body", "shape": "box", "size": [0.1, 0.1, 0.04], "cell_size": 0.02,
-                 "material": "liver", "fixed": [{"side": "z_min"}]}],
-    "simulation": {"integrator": "xpbd", "dt": 1 / 24, "substeps": 2, "iterations": 2},
-    "tools": [{"name": "probe", "radius": 0.015, "keyframes": [
-        {"t": 0.0, "position": [0.05, 0.05, 0.07]}, {"t": 0.2, "position": [0.05, 0.05, 0.02]}]}],
-    "camera": {"position": [0.0, -0.25, 0.2], "look_at": [0.05, 0.05, 0.02], "fov_deg": 60.0},
-    "light": {"attach": "camera", "size": [0.02, 0.02], "radiance": [3000.0, 3000.0, 3000.0],
-              "sampling": "uniform", "samples": 128},
-    "effects": {"tonemap": {}},
-    "output": {"resolution": [32, 24], "frames": 6, "fps": 24.0, "formats": ["png", "hdr_npy", "vtu"],
-               "supersampling": 3},
-}
+SCENE = pressed_block_scene("resume", {"sampling": "uniform", "samples": 128}, {
+    "resolution": [32, 24], "frames": 6, "fps": 24.0, "formats": ["png", "hdr_npy", "vtu"], "supersampling": 3})
 OUTPUTS = [f"frame_{k:04d}.{ext}" for k in range(1, 7) for ext in ("png", "npy")] + \
           [f"block_{k:04d}.vtu" for k in range(1, 7)]
 # manifest keys that do not depend on timing, the machine or which run wrote which frame
