@@ -49,6 +49,13 @@ class Probe:
         """The capsules (a, b, radius) the probe is made of at ``t``: here its one segment."""
         return [(*self.segment(t), float(self.radius))]
 
+    def push_out(self, x: np.ndarray, t: float, inv_mass: np.ndarray, load: np.ndarray) -> int:
+        """Project the free nodes out of the probe at ``t``, summing into ``load`` (:func:`resolve_contact_load`):
+        every capsule in turn (a mesh tool, ``sim.contact_bodies.MeshProbe``, its triangles instead)."""
+        centre = self.position(t)
+        return sum(int(push_out_of_capsule_load(x, inv_mass, a, b, float(r), centre, load))
+                   for a, b, r in self.capsules(t))
+
 
 def resolve_contact(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray) -> int:
     """Project the free nodes of ``x`` (in place) out of ``probe`` at time ``t``; returns how many moved
@@ -99,6 +106,4 @@ def push_out_of_capsule_load(x, inv_mass, a, b, radius, centre, load):
 def resolve_contact_load(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray, load: np.ndarray) -> int:
     """:func:`resolve_contact`, summing into ``load`` (6,) the mass-weighted displacement and its moment about the
     probe's centre at ``t`` (:func:`push_out_of_capsule_load`), over every capsule of the probe."""
-    centre = probe.position(t)
-    return sum(int(push_out_of_capsule_load(x, inv_mass, a, b, float(r), centre, load))
-               for a, b, r in probe.capsules(t))
+    return probe.push_out(x, t, inv_mass, load)
