@@ -199,3 +199,68 @@ def test_a_cube_mesh_tool_carries_a_block_resting_on_it_and_keeps_every_node_out
     assert depth.max() < 1e-12
     assert (state.x[:, 2] < -1e-3).sum() == 0 and state.x[:, 2].min() == pytest.approx(0.005, abs=1e-9)
     assert integrator.tool_loads[0, 2] < 0.0  # the tissue pushes the tool back down
+
+
+SQUARE_OBJ = """# a static 1 m square at z = 0, its winding's normal +z
+v -0.5 -0.5 0
+v 0.5 -0.5 0
+v 0.5 0.5 0
+v -0.5 0.5 0
+f 1 2 3
+f 1 3 4
+"""
+
+
+def _contact_scene(scene_dict, tmp_path, integrator="xpbd"):
+    """The minimal scene's 10x10x4 cm block, unfixed, on a static square (a wall's OBJ) at z = 0 (friction 0.5), a
+    6x6x2 cm lid of the same material resting on it, damped."""
+    (tmp_path / "wall.obj").write_text(SQUARE_OBJ)
+    block = scene_dict["objects"][0]
+    del block["fixed"]
+    lid = {"name": "lid", "kind": "body", "shape": "box", "size": [0.06, 0.06, 0.02], "cell_size": 0.02,
+           "material": "liver", "position": [0.02, 0.02, 0.04]}
+    wall = {"name": "wall", "kind": "surface", "mesh": "wall.obj", "material": "fascia"}
+    scene_dict["objects"] += [lid, wall]
+    scene_dict["contacts"] = [{"bodies": ["block", "wall"], "friction": 0.5}, {"bodies": ["block", "lid"]}]
+    scene_dict["simulation"] = {"integrator": integrator, "dt": 1 / 48}
+    if integrator == "xpbd":
+        scene_dict["simulation"] |= {"substeps": 10, "iterations": 4, "xpbd": {"damping": 20.0}}
+    return scene_dict
+
+
+def test_a_scene_block_on_a_wall_mesh_carries_a_lid_and_reports_both_contact_forces(scene_dict, write_scene, tmp_path):
+    from tissuerender import load_scene
+    from tissuerender.plan import make_plan
+    from tissuerender.stages import StageRecorder
+    from tissuerender.world import ToolForceLog, advance, build_world
+
+    scene = load_scene(write_scene(_contact_scene(scene_dict, tmp_path)))
+    recorder = StageRecorder()
+    world = build_world(scene, make_plan(scene), recorder)
+    assert world.integrators[1] is None  # the lid is stepped with the block, as one model
+    for _ in range(12):
+        advance(world, scene, recorder)
+    block, lid = (b.model.mass.sum() * G for b in world.bodies)
+    on_wall, on_lid = world.tool_loads
+    # the wall carries both, the block the lid (measured after 0.25 s, damped 20/s: 2e-3 and 3e-3)
+    assert on_wall[2] == pytest.approx(-(block + lid), rel=0.01)
+    assert on_lid[2] == pytest.approx(lid, rel=0.01)
+    assert ToolForceLog(scene).names == ["contact:block:wall", "contact:block:lid"]
+    x_block, x_lid = world.states[0].x, world.states[1].x
+    assert x_block[:, 2].min() > -1e-9 and x_lid[:, 2].min() > 0.035  # on the wall; on the block (compressed)
+
+
+@pytest.mark.parametrize("change, key, words", [
+    ({"integrator": "explicit"}, "contacts[0]", "not for simulation.integrator = 'explicit'"),
+    ({"name": "liver"}, "contacts[0].bodies", "'liver', which is not an object"),
+])
+def test_a_contact_needs_xpbd_and_named_objects(scene_dict, write_scene, tmp_path, change, key, words):
+    from tissuerender import load_scene
+    from tissuerender.errors import SceneError
+
+    data = _contact_scene(scene_dict, tmp_path, change.get("integrator", "xpbd"))
+    if "name" in change:
+        data["contacts"][0]["bodies"][0] = change["name"]
+    with pytest.raises(SceneError) as error:
+        load_scene(write_scene(data))
+    assert key in str(error.value) and words in str(error.value)

@@ -68,6 +68,7 @@ SECTIONS: tuple[Section, ...] = (
     Section("tools", schema.Tool),
     Section("tools.keyframes", schema.Keyframe),
     Section("tools.grasp", schema.GraspSpec),
+    Section("contacts", schema.ContactSpec),
     Section("camera", schema.Camera),
     Section("camera.path", schema.CameraKeyframe),
     Section("camera.lens", schema.CameraLens),

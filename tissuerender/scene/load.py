@@ -43,6 +43,8 @@ class SceneFile(BaseModel):
     simulation: schema.Simulation = Field(schema.Simulation(), description="how bodies move")
     tools: Annotated[list[schema.Tool], Field(max_length=16, description=(
         "rigid probes on keyframed paths: drawn, and pushing simulated tissue"))] = []
+    contacts: Annotated[list[schema.ContactSpec], Field(max_length=64, description=(
+        "pairs of objects that cannot pass through each other, with friction (xpbd; table below)"))] = []
     camera: schema.Camera = Field(description="the laparoscope's view")
     light: schema.Light = Field(schema.Light(), description="a rectangular area light")
     effects: dict = Field({}, description="renderer switches and post-effect tables (validated as schema.Effects)")
@@ -63,6 +65,7 @@ class Scene:
     light: schema.Light
     effects: schema.EffectsBase
     output: schema.Output
+    contacts: tuple = ()  # ContactSpec: body-body and body-surface contact (tissuerender.contacts)
 
     @property
     def name(self) -> str:
@@ -215,6 +218,7 @@ def scene_from_data(data: dict, path, sha256: str) -> Scene:
         light=parsed.light,
         effects=effects,
         output=parsed.output,
+        contacts=tuple(parsed.contacts),
     )
     _check_references(scene)
     return scene

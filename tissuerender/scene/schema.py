@@ -22,7 +22,7 @@ from sim.integrators.xpbd.settings import XPBDSceneSettings
 
 from tissuerender.scene.camera_schema import CameraKeyframe, CameraLens, check_path, degenerate_view
 from tissuerender.scene.bc_schema import HeldComponents
-from tissuerender.scene.interaction_schema import FloorSpec, GraspSpec
+from tissuerender.scene.interaction_schema import ContactSpec, FloorSpec, GraspSpec  # noqa: F401 (ContactSpec: load.SceneFile)
 from tissuerender.scene.optics_schema import LayerOverride
 from tissuerender.scene.shapes import SHAPES
 
