@@ -51,6 +51,8 @@ class SurfaceContact:
 
 
 def default_reach(points: np.ndarray, faces: np.ndarray, closed_static: bool) -> float:
+    """A body's or an open surface's mean edge; a closed static surface's half its box's smallest side (every point
+    inside it is then within reach of its surface), at least its mean edge."""
     edge = mean_edge_length(points, faces)
     if not closed_static:
         return edge
@@ -74,13 +76,15 @@ class SurfaceContactState:
             self.vmap, local = np.unique(spec.faces, return_inverse=True)
             self.faces = np.ascontiguousarray(local.reshape(-1, 3), dtype=np.int64)
         rest = self.xv if self.static else X
-        self.reach = spec.reach if spec.reach is not None else default_reach(rest, spec.faces, self.static)
         self.adjacent = face_adjacency(self.faces)
+        closed = self.static and bool((self.adjacent >= 0).all())
+        self.reach = spec.reach if spec.reach is not None else default_reach(rest, spec.faces, closed)
         k, q = self.faces.shape[0], spec.nodes.size
         self.face_n, self.edge_n = np.zeros((k, 3)), np.zeros((k, 3, 3))
         self.vert_n = np.zeros((self.vmap.size, 3))
         self.lam_n, self.tri = np.zeros(q), np.zeros(q, dtype=np.int64)
         self.bary, self.normal = np.zeros((q, 3)), np.zeros((q, 3))
+        self.active = spec.nodes  # the nodes the sweeps of this substep visit (begin)
         self.shift = np.zeros(3)
         self.centre = np.zeros(3)
         if self.static:
@@ -97,29 +101,44 @@ class SurfaceContactState:
         self.origin, self.dims, self.start, self.items = build_grid(self.lo, self.hi, cell)
 
     def begin(self, x: np.ndarray) -> None:
-        """At a substep's start (after the prediction): a body's surface gets its grid at ``x``; multipliers reset."""
+        """At a substep's start (after the prediction): a body's surface gets its grid at ``x``; multipliers reset;
+        the sweeps will visit only the nodes within ``reach`` of the surface now (a node farther off would have to be
+        moved more than ``reach``, an edge length by default, by the sweeps' corrections within one substep to
+        reach it)."""
         if not self.static:
             self._surface(x)
-        self.lam_n[:] = 0.0
+        xv, wv = (self.xv, self.wv) if self.static else (x, np.zeros(0))
+        q = self.spec.nodes.size
+        tri = np.empty(q, dtype=np.int64)
+        project_nodes(x, np.zeros(0), self.spec.nodes, xv, self.vmap, wv, self.shift, self.faces, self.face_n,
+                      self.edge_n, self.vert_n, self.lo, self.hi, self.origin, self.cell, self.dims, self.start,
+                      self.items, self.reach, self.lam_n, tri, self.bary, self.normal, np.zeros(6), self.centre,
+                      0.0, True)
+        self.active = self.spec.nodes[tri >= 0]
+        k = self.active.size
+        self.lam_n, self.tri = np.zeros(k), np.zeros(k, dtype=np.int64)
+        self.bary, self.normal = np.zeros((k, 3)), np.zeros((k, 3))
 
     def project(self, x: np.ndarray, w: np.ndarray, load: np.ndarray) -> int:
         """One pass over the nodes; adds ``sign`` times their impulse and its moment about ``centre`` to ``load``."""
+        if not self.active.size:
+            return 0
         if self.static:
             xv, wv = self.xv, self.wv
         else:  # the surface moves with the sweeps: normals at the current positions, grid from the substep's start
             pseudonormals(x, self.vmap, self.faces, self.adjacent, self.face_n, self.edge_n, self.vert_n)
             xv, wv = x, w
-        return int(project_nodes(x, w, self.spec.nodes, xv, self.vmap, wv, self.shift, self.faces, self.face_n,
+        return int(project_nodes(x, w, self.active, xv, self.vmap, wv, self.shift, self.faces, self.face_n,
                                  self.edge_n, self.vert_n, self.lo, self.hi, self.origin, self.cell, self.dims,
                                  self.start, self.items, self.reach, self.lam_n, self.tri, self.bary, self.normal,
                                  load, self.centre, self.spec.sign))
 
     def friction(self, x: np.ndarray, x_prev: np.ndarray, w: np.ndarray, load: np.ndarray,
                  shift_delta: np.ndarray | None = None) -> None:
-        if self.spec.friction == 0.0:
+        if self.spec.friction == 0.0 or not self.active.size:
             return
         xv, xv_prev, wv = (self.xv, self.xv, self.wv) if self.static else (x, x_prev, w)
-        friction_nodes(x, x_prev, w, self.spec.nodes, xv, xv_prev, self.vmap, wv,
+        friction_nodes(x, x_prev, w, self.active, xv, xv_prev, self.vmap, wv,
                        np.zeros(3) if shift_delta is None else shift_delta, self.faces, self.spec.friction,
                        self.lam_n, self.tri, self.bary, self.normal, load, self.centre, self.spec.sign)
 
@@ -134,6 +153,8 @@ class MeshProbe(Probe):
 
     def __init__(self, points, faces, times, positions, reach: float | None = None):
         super().__init__(kind="mesh", radius=0.0, times=times, positions=positions)
+        self.points = np.asarray(points, dtype=np.float64)
+        self.faces = np.asarray(faces, dtype=np.int64)
         self.contact = SurfaceContactState(SurfaceContact(np.zeros(0), faces, np.asarray(points, float), reach=reach,
                                                           sign=1.0), np.zeros((0, 3)))
         self.all_nodes = np.zeros(0, dtype=np.int64)
@@ -147,7 +168,7 @@ class MeshProbe(Probe):
             self.all_nodes = np.arange(x.shape[0], dtype=np.int64)
             c.lam_n, c.tri = np.zeros(x.shape[0]), np.zeros(x.shape[0], dtype=np.int64)
             c.bary, c.normal = np.zeros((x.shape[0], 3)), np.zeros((x.shape[0], 3))
-        c.spec.nodes = self.all_nodes
+        c.spec.nodes = c.active = self.all_nodes
         c.shift = self.position(t)
         c.centre = c.shift
         return c.project(x, inv_mass, load)

@@ -143,13 +143,14 @@ def build_grid(lo, hi, cell):
 
 @njit(cache=True)
 def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_n, lo, hi, origin, cell, dims,
-                  start, items, reach, lam_n, contact_tri, contact_bary, contact_n, load, centre, sign):
+                  start, items, reach, lam_n, contact_tri, contact_bary, contact_n, load, centre, sign, mark=False):
     """One Gauss-Seidel pass of the contact constraint (module docstring) over ``nodes`` of ``x``: surface vertex k
     at ``xv[vmap[k]] + shift`` (inverse mass ``wv[vmap[k]]``); grid (``build_grid``) of the triangle boxes
     ``lo``-``hi`` (grown by ``reach``) in the surface's frame (``p - shift``). Records per node (index into
     ``nodes``) the summed normal impulse, the triangle, barycentrics and normal of its last correction; adds
     ``sign`` times the impulse on the nodes and its moment about ``centre`` to ``load`` (6,). Returns the number of
-    corrections."""
+    corrections. ``mark``: correct nothing, only set ``contact_tri[q]`` to a triangle within ``reach`` of node q, or -1
+    (the nodes a substep's sweeps visit, ``sim.contact_bodies.SurfaceContactState.begin``); returns their number."""
     moved = 0
     g = np.empty(3)
     a, b, c = np.empty(3), np.empty(3), np.empty(3)
@@ -160,6 +161,8 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
         cx = int(np.floor((g[0] - origin[0]) / cell))
         cy = int(np.floor((g[1] - origin[1]) / cell))
         cz = int(np.floor((g[2] - origin[2]) / cell))
+        if mark:
+            contact_tri[q] = -1
         if cx < 0 or cy < 0 or cz < 0 or cx >= dims[0] or cy >= dims[1] or cz >= dims[2]:
             continue
         cell_id = (cx * dims[1] + cy) * dims[2] + cz
@@ -183,6 +186,10 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
             if d2 <= best:
                 best, best_t, best_f, b0, b1, b2 = d2, t, feature, c0, c1, c2
         if best_t < 0:
+            continue
+        if mark:
+            contact_tri[q] = best_t
+            moved += 1
             continue
         t = best_t
         va, vb, vc = vmap[faces[t, 0]], vmap[faces[t, 1]], vmap[faces[t, 2]]

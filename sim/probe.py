@@ -37,8 +37,13 @@ class Probe:
             raise ValueError(f"probe kind must be one of {', '.join(self.KINDS)}, found {self.kind!r}")
 
     def position(self, t: float) -> np.ndarray:
-        """Path point at time ``t`` (linear between keyframes, held before the first and after the last)."""
-        return np.array([np.interp(t, self.times, self.positions[:, k]) for k in range(3)])
+        """Path point at time ``t`` (linear between keyframes, held before the first and after the last). The last
+        one is kept: every sweep of a substep asks for the same time."""
+        last = getattr(self, "_last", None)
+        if last is None or last[0] != t:
+            last = (t, np.array([np.interp(t, self.times, self.positions[:, k]) for k in range(3)]))
+            self._last = last
+        return last[1].copy()
 
     def segment(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         c = self.position(t)

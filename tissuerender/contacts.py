@@ -7,11 +7,45 @@ stepped by one integrator for the group; a body's contact with a static surface 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
-from sim.contact_bodies import BodyGroup, add_body_contact, add_static_contact, boundary_nodes_and_faces, merge_models
+from sim.contact_bodies import (BodyGroup, MeshProbe, add_body_contact, add_static_contact, boundary_nodes_and_faces,
+                                merge_models)
+from sim.contact_mesh import face_adjacency
+from sim.errors import MeshError
+from sim.mesh import io
+from sim.mesh.surface import orient_outward, vertex_normals, weld
+from sim.mesh.types import SurfaceMesh
 from sim.model import State
+from tissuerender.errors import UserError
+
+
+@lru_cache(maxsize=16)
+def _tool_surface(path: str):
+    try:
+        read = io.read_surface(path)  # welded on positions alone, outward wound (as a body's surface file)
+        surface = orient_outward(weld(SurfaceMesh(read.points, read.triangles, source=read.source)))
+    except MeshError as e:
+        raise UserError(f"{path}: {e}") from None
+    faces = surface.triangles.astype(np.int64)
+    open_edges = int((face_adjacency(faces) < 0).sum())
+    if open_edges:
+        raise UserError(f"{path}: a mesh tool must be a closed surface (its inside pushes tissue out), found "
+                        f"{open_edges} edges with one triangle or more than two")
+    return surface.points, faces, vertex_normals(surface.points, faces)
+
+
+def mesh_tool_probe(tool) -> MeshProbe:
+    """The probe of a ``kind = "mesh"`` tool: its file's closed surface (read once per file), on its keyframed path;
+    ``normals``: the vertex normals it is drawn with."""
+    points, faces, normals = _tool_surface(tool.mesh)
+    times = np.array([k.t for k in tool.keyframes], dtype=np.float64)
+    positions = np.array([k.position for k in tool.keyframes], dtype=np.float64)
+    probe = MeshProbe(points, faces, times, positions)
+    probe.normals = normals
+    return probe
 
 
 def contact_names(scene) -> list[str]:

@@ -13,7 +13,7 @@ from sim.errors import SimulationDiverged
 from sim.model import State
 from sim.probe import Probe
 from tissuerender import instruments
-from tissuerender.contacts import GroupStepper, add_contact_loads, attach_contacts, contact_names
+from tissuerender.contacts import GroupStepper, add_contact_loads, attach_contacts, contact_names, mesh_tool_probe
 from tissuerender.bodies import Body, StaticSurface, build_body, build_static_surface
 from tissuerender.errors import UserError
 from tissuerender.files import write_atomic
@@ -99,6 +99,8 @@ def make_probe(tool) -> Probe:
     """The simulation's rigid probe for a scene tool (its keyframed path)."""
     if tool.kind in instruments.INSTRUMENT_KINDS:
         return instruments.InstrumentProbe(tool)
+    if tool.kind == "mesh":
+        return mesh_tool_probe(tool)
     times = np.array([k.t for k in tool.keyframes], dtype=np.float64)
     positions = np.array([k.position for k in tool.keyframes], dtype=np.float64)
     return Probe(kind=tool.kind, radius=tool.radius, times=times, positions=positions,

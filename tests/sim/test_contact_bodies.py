@@ -264,3 +264,29 @@ def test_a_contact_needs_xpbd_and_named_objects(scene_dict, write_scene, tmp_pat
     with pytest.raises(SceneError) as error:
         load_scene(write_scene(data))
     assert key in str(error.value) and words in str(error.value)
+
+
+def test_a_scene_mesh_tool_pushes_the_block_and_is_drawn_where_it_pushes(scene_dict, write_scene, tmp_path):
+    """A cube OBJ tool (0.2 m) lowered 5 mm into the minimal scene's clamped block (top at z = 0.04) over 0.25 s:
+    no node inside the cube, the tissue pushes it back up (fz > 0), and the drawn triangles are the file's on the
+    tool's path."""
+    from tissuerender import load_scene
+    from tissuerender.plan import make_plan
+    from tissuerender.render_inputs import tool_surface
+    from tissuerender.stages import StageRecorder
+    from tissuerender.world import advance, build_world
+
+    (tmp_path / "cube.obj").write_text(CUBE_OBJ)
+    scene_dict["simulation"] = {"integrator": "xpbd", "dt": 1 / 48, "substeps": 10, "iterations": 8}
+    scene_dict["tools"] = [{"name": "cube", "kind": "mesh", "mesh": "cube.obj", "keyframes": [
+        {"t": 0.0, "position": [0.05, 0.05, 0.14]}, {"t": 0.25, "position": [0.05, 0.05, 0.135]}]}]
+    scene = load_scene(write_scene(scene_dict))
+    recorder = StageRecorder()
+    world = build_world(scene, make_plan(scene), recorder)
+    for _ in range(6):
+        advance(world, scene, recorder)
+    x = world.states[0].x
+    assert x[:, 2].max() == pytest.approx(0.035, abs=1e-9)  # the top face pressed to the cube's bottom, not into it
+    assert world.tool_loads[0, 2] > 0.0  # the tissue pushes the cube up
+    points, triangles, normals = tool_surface(scene.tools[0], 0.25)
+    assert triangles.shape == (12, 3) and points.min(axis=0) == pytest.approx([-0.05, -0.05, 0.035])

@@ -213,7 +213,8 @@ def scene_from_data(data: dict, path, sha256: str) -> Scene:
         info=parsed.scene,
         objects=tuple(parsed.objects),
         simulation=parsed.simulation,
-        tools=tuple(parsed.tools),
+        # a mesh tool's file resolved against the scene's folder (its probe and drawing are built from the tool alone)
+        tools=tuple(t.model_copy(update={"mesh": str(path.parent / t.mesh)}) if t.mesh else t for t in parsed.tools),
         camera=parsed.camera,
         light=parsed.light,
         effects=effects,
@@ -256,6 +257,11 @@ def _check_references(scene: Scene) -> None:
             if n > MAX_TETS:
                 raise SceneError(p, f"{key}.cell_size",
                                  f"expected at most {MAX_TETS} tets, found about {n} for this size and cell size")
+    for i, tool in enumerate(scene.tools):
+        if tool.mesh is not None and (Path(tool.mesh).suffix.lower() not in SURFACE_SUFFIXES
+                                      or not scene.resolve(tool.mesh).is_file()):
+            raise SceneError(p, f"tools[{i}].mesh", f"expected a {'/'.join(SURFACE_SUFFIXES)} file, found {tool.mesh!r}"
+                             f" ({scene.resolve(tool.mesh)} {'exists' if scene.resolve(tool.mesh).is_file() else 'not found'})")
     tool_names = [t.name for t in scene.tools]
     if len(set(tool_names)) != len(tool_names):
         raise SceneError(p, "tools", f"expected unique tool names, found {tool_names}")
