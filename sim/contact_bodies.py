@@ -20,7 +20,7 @@ import numpy as np
 
 from sim.contact import ContactPlane
 from sim.contact_mesh import (GRID_CELLS, build_grid, face_adjacency, friction_nodes, mean_edge_length,
-                              project_nodes, pseudonormals)
+                              project_nodes, pseudonormals, triangle_boxes)
 from sim.mesh.surface import boundary_faces
 from sim.model import Model, PrescribedDisplacement, State
 from sim.probe import Probe
@@ -93,12 +93,8 @@ class SurfaceContactState:
     def _surface(self, xv: np.ndarray) -> None:
         """Normals and grid of the surface at ``xv`` (the static points, or the model's positions)."""
         pseudonormals(xv, self.vmap, self.faces, self.adjacent, self.face_n, self.edge_n, self.vert_n)
-        p = xv[self.vmap][self.faces]
-        self.lo, self.hi = p.min(axis=1) - self.reach, p.max(axis=1) + self.reach
-        extent = float((self.hi.max(axis=0) - self.lo.min(axis=0)).max())
-        cell = max(float((self.hi - self.lo).max(axis=1).mean()), extent / GRID_CELLS)
-        self.cell = cell
-        self.origin, self.dims, self.start, self.items = build_grid(self.lo, self.hi, cell)
+        self.lo, self.hi, self.cell = triangle_boxes(xv, self.vmap, self.faces, self.reach, GRID_CELLS)
+        self.origin, self.dims, self.start, self.items = build_grid(self.lo, self.hi, self.cell)
 
     def begin(self, x: np.ndarray) -> None:
         """At a substep's start (after the prediction): a body's surface gets its grid at ``x``; multipliers reset;
@@ -123,11 +119,9 @@ class SurfaceContactState:
         """One pass over the nodes; adds ``sign`` times their impulse and its moment about ``centre`` to ``load``."""
         if not self.active.size:
             return 0
-        if self.static:
-            xv, wv = self.xv, self.wv
-        else:  # the surface moves with the sweeps: normals at the current positions, grid from the substep's start
-            pseudonormals(x, self.vmap, self.faces, self.adjacent, self.face_n, self.edge_n, self.vert_n)
-            xv, wv = x, w
+        # a body's surface moves with the sweeps: its points at their current positions, its normals and grid from
+        # the substep's start (they turn by a substep's rotation of the surface, far below what flips an inside test)
+        xv, wv = (self.xv, self.wv) if self.static else (x, w)
         return int(project_nodes(x, w, self.active, xv, self.vmap, wv, self.shift, self.faces, self.face_n,
                                  self.edge_n, self.vert_n, self.lo, self.hi, self.origin, self.cell, self.dims,
                                  self.start, self.items, self.reach, self.lam_n, self.tri, self.bary, self.normal,

@@ -107,6 +107,27 @@ def pseudonormals(xv, vmap, faces, adjacent, face_n, edge_n, vert_n):
 
 
 @njit(cache=True)
+def triangle_boxes(xv, vmap, faces, reach, cells):
+    """The triangles' boxes grown by ``reach`` (``lo``, ``hi``: (k, 3)) and a grid cell: their mean largest side, at
+    least the boxes' whole extent over ``cells``."""
+    k = faces.shape[0]
+    lo, hi = np.empty((k, 3)), np.empty((k, 3))
+    total_lo, total_hi = np.full(3, np.inf), np.full(3, -np.inf)
+    mean_side = 0.0
+    for f in range(k):
+        side = 0.0
+        for d in range(3):
+            a, b, c = xv[vmap[faces[f, 0]], d], xv[vmap[faces[f, 1]], d], xv[vmap[faces[f, 2]], d]
+            lo[f, d] = min(a, b, c) - reach
+            hi[f, d] = max(a, b, c) + reach
+            side = max(side, hi[f, d] - lo[f, d])
+            total_lo[d] = min(total_lo[d], lo[f, d])
+            total_hi[d] = max(total_hi[d], hi[f, d])
+        mean_side += side / k
+    return lo, hi, max(mean_side, (total_hi - total_lo).max() / cells)
+
+
+@njit(cache=True)
 def build_grid(lo, hi, cell):
     """A uniform grid over boxes ``lo``-``hi`` (k, 3) with cubic cells of side ``cell``: ``(origin, dims, start,
     items)``, the boxes overlapping cell c being ``items[start[c]:start[c + 1]]``."""
@@ -170,9 +191,13 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
         b0 = b1 = b2 = 0.0
         for s in range(start[cell_id], start[cell_id + 1]):
             t = items[s]
-            if (g[0] < lo[t, 0] or g[0] > hi[t, 0] or g[1] < lo[t, 1] or g[1] > hi[t, 1]
-                    or g[2] < lo[t, 2] or g[2] > hi[t, 2]
-                    or face_n[t, 0] == 0.0 and face_n[t, 1] == 0.0 and face_n[t, 2] == 0.0):
+            # the distance to the triangle's own box (the grown box shrunk by reach) bounds the distance to it from
+            # below: a triangle whose box is farther than the best so far cannot be closer
+            box2 = 0.0
+            for d in range(3):
+                r = max(lo[t, d] + reach - g[d], g[d] - (hi[t, d] - reach), 0.0)
+                box2 += r * r
+            if box2 > best or face_n[t, 0] == 0.0 and face_n[t, 1] == 0.0 and face_n[t, 2] == 0.0:
                 continue
             for d in range(3):  # in the surface's frame
                 a[d] = xv[vmap[faces[t, 0]], d]
@@ -185,6 +210,8 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
                 d2 += r * r
             if d2 <= best:
                 best, best_t, best_f, b0, b1, b2 = d2, t, feature, c0, c1, c2
+                if mark:  # one triangle within reach is enough
+                    break
         if best_t < 0:
             continue
         if mark:

@@ -34,17 +34,23 @@ def _tool_surface(path: str):
     if open_edges:
         raise UserError(f"{path}: a mesh tool must be a closed surface (its inside pushes tissue out), found "
                         f"{open_edges} edges with one triangle or more than two")
-    return surface.points, faces, vertex_normals(surface.points, faces)
+    if read.normals is not None:  # drawn as the file gives it, else flat (a file without normals has sharp edges)
+        drawn = (read.points, read.triangles.astype(np.int32), read.normals)
+    else:
+        p = surface.points[faces]
+        n = vertex_normals(p.reshape(-1, 3), np.arange(3 * len(faces)).reshape(-1, 3))  # unshared: the face normals
+        drawn = (p.reshape(-1, 3), np.arange(3 * len(faces), dtype=np.int32).reshape(-1, 3), n)
+    return surface.points, faces, drawn
 
 
 def mesh_tool_probe(tool) -> MeshProbe:
     """The probe of a ``kind = "mesh"`` tool: its file's closed surface (read once per file), on its keyframed path;
-    ``normals``: the vertex normals it is drawn with."""
-    points, faces, normals = _tool_surface(tool.mesh)
+    ``drawn``: the (points, triangles, normals) it is drawn with, relative to its path point."""
+    points, faces, drawn = _tool_surface(tool.mesh)
     times = np.array([k.t for k in tool.keyframes], dtype=np.float64)
     positions = np.array([k.position for k in tool.keyframes], dtype=np.float64)
     probe = MeshProbe(points, faces, times, positions)
-    probe.normals = normals
+    probe.drawn = drawn
     return probe
 
 

@@ -130,7 +130,8 @@ def tool_surface(tool, t: float):
         return instruments.instrument_surface(tool, t)
     probe = make_probe(tool)
     if tool.kind == "mesh":  # its file's triangles on the path (tissuerender.contacts.mesh_tool_probe)
-        return probe.points + probe.position(t), probe.faces.astype(np.int32), probe.normals
+        points, triangles, normals = probe.drawn
+        return points + probe.position(t), triangles, normals
     centre = np.asarray(probe.position(t), dtype=np.float64)
     if tool.kind == "sphere":
         m = trimesh.creation.icosphere(subdivisions=3, radius=tool.radius)
