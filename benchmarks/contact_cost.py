@@ -1,7 +1,7 @@
 """What contact and grasping cost (issue 21, "Performance": at most 20 % of a step of ``liver_probe``): the liver of
 scenes/liver_probe.toml and a 4 x 4 x 1.5 cm slab of fat dropped onto it from just above its top, stepped by xpbd as
-one model, with the capsule probe pushing, a grasp of that probe (closing at 0.25 s, holding to the end) and contact
-(``[[contacts]]``: liver and slab, friction 0.3; liver and the static peritoneum wall, friction 0.3), against the same
+one model, with the capsule probe pushing, a grasp of that probe (closing at 0.25 s, 3 cm, holding to the end) and
+contact (``[[contacts]]``: liver and slab, friction 0.8; liver and the static peritoneum wall, 0.3), against the same
 model stepped with none of these (the slab then falls through the liver) and with the probe alone.
 
 Usage: .venv/bin/python benchmarks/contact_cost.py [--quick]
@@ -42,10 +42,12 @@ SCENE = Path(__file__).resolve().parents[1] / "scenes" / "liver_probe.toml"
 def scene_with_contact():
     """liver_probe with a grasp on its probe and the liver-wall contact."""
     data = tomllib.loads(SCENE.read_text())
-    data["tools"][0]["grasp"] = [{"t_close": 0.25, "t_release": 1.0}]
+    # the capsule's lower end, not its path point, reaches the liver: a 3 cm grasp radius takes the nodes it presses
+    data["tools"][0]["grasp"] = [{"t_close": 0.25, "t_release": 1.0, "radius": 0.03}]
+    # on the liver's top (its highest node is at (0.045, 0.038, 0.097)); friction 0.8 holds it on the slope
     data["objects"].insert(1, {"name": "slab", "shape": "box", "size": [0.04, 0.04, 0.015], "cell_size": 0.01,
-                               "material": "fat", "position": [0.04, -0.02, 0.099]})
-    data["contacts"] = [{"bodies": ["liver", "slab"], "friction": 0.3}, {"bodies": ["liver", "wall"], "friction": 0.3}]
+                               "material": "fat", "position": [0.025, 0.018, 0.099]})
+    data["contacts"] = [{"bodies": ["liver", "slab"], "friction": 0.8}, {"bodies": ["liver", "wall"], "friction": 0.3}]
     return scene_from_data(data, SCENE, "benchmark")
 
 
