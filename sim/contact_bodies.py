@@ -85,6 +85,8 @@ class SurfaceContactState:
         self.lam_n, self.tri = np.zeros(q), np.zeros(q, dtype=np.int64)
         self.bary, self.normal = np.zeros((q, 3)), np.zeros((q, 3))
         self.active = spec.nodes  # the nodes the sweeps of this substep visit (begin)
+        self.no_hint = np.zeros(0, dtype=np.int64)
+        self.hint = self.no_hint
         self.shift = np.zeros(3)
         self.centre = np.zeros(3)
         if self.static:
@@ -109,8 +111,9 @@ class SurfaceContactState:
         project_nodes(x, np.zeros(0), self.spec.nodes, xv, self.vmap, wv, self.shift, self.faces, self.face_n,
                       self.edge_n, self.vert_n, self.lo, self.hi, self.origin, self.cell, self.dims, self.start,
                       self.items, self.reach, self.lam_n, tri, self.bary, self.normal, np.zeros(6), self.centre,
-                      0.0, True)
+                      0.0, self.no_hint, True)
         self.active = self.spec.nodes[tri >= 0]
+        self.hint = tri[tri >= 0]  # each visited node's nearest triangle now: tried first in the sweeps
         k = self.active.size
         self.lam_n, self.tri = np.zeros(k), np.zeros(k, dtype=np.int64)
         self.bary, self.normal = np.zeros((k, 3)), np.zeros((k, 3))
@@ -125,7 +128,7 @@ class SurfaceContactState:
         return int(project_nodes(x, w, self.active, xv, self.vmap, wv, self.shift, self.faces, self.face_n,
                                  self.edge_n, self.vert_n, self.lo, self.hi, self.origin, self.cell, self.dims,
                                  self.start, self.items, self.reach, self.lam_n, self.tri, self.bary, self.normal,
-                                 load, self.centre, self.spec.sign))
+                                 load, self.centre, self.spec.sign, self.hint))
 
     def friction(self, x: np.ndarray, x_prev: np.ndarray, w: np.ndarray, load: np.ndarray,
                  shift_delta: np.ndarray | None = None) -> None:
@@ -163,6 +166,7 @@ class MeshProbe(Probe):
             c.lam_n, c.tri = np.zeros(x.shape[0]), np.zeros(x.shape[0], dtype=np.int64)
             c.bary, c.normal = np.zeros((x.shape[0], 3)), np.zeros((x.shape[0], 3))
         c.spec.nodes = c.active = self.all_nodes
+        c.hint = c.no_hint
         c.shift = self.position(t)
         c.centre = c.shift
         return c.project(x, inv_mass, load)

@@ -164,14 +164,17 @@ def build_grid(lo, hi, cell):
 
 @njit(cache=True)
 def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_n, lo, hi, origin, cell, dims,
-                  start, items, reach, lam_n, contact_tri, contact_bary, contact_n, load, centre, sign, mark=False):
+                  start, items, reach, lam_n, contact_tri, contact_bary, contact_n, load, centre, sign, hint,
+                  mark=False):
     """One Gauss-Seidel pass of the contact constraint (module docstring) over ``nodes`` of ``x``: surface vertex k
     at ``xv[vmap[k]] + shift`` (inverse mass ``wv[vmap[k]]``); grid (``build_grid``) of the triangle boxes
     ``lo``-``hi`` (grown by ``reach``) in the surface's frame (``p - shift``). Records per node (index into
     ``nodes``) the summed normal impulse, the triangle, barycentrics and normal of its last correction; adds
     ``sign`` times the impulse on the nodes and its moment about ``centre`` to ``load`` (6,). Returns the number of
-    corrections. ``mark``: correct nothing, only set ``contact_tri[q]`` to a triangle within ``reach`` of node q, or -1
-    (the nodes a substep's sweeps visit, ``sim.contact_bodies.SurfaceContactState.begin``); returns their number."""
+    corrections. ``hint`` (empty, or a triangle per node, -1 for none): tried first, so the nearest-box pruning drops
+    the others at once when the node is still nearest to it. ``mark``: correct nothing, only set ``contact_tri[q]`` to
+    the triangle nearest node q within ``reach``, or -1 (the nodes a substep's sweeps visit, and their hints,
+    ``sim.contact_bodies.SurfaceContactState.begin``); returns their number."""
     moved = 0
     g = np.empty(3)
     a, b, c = np.empty(3), np.empty(3), np.empty(3)
@@ -189,8 +192,9 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
         cell_id = (cx * dims[1] + cy) * dims[2] + cz
         best, best_t, best_f = reach * reach, -1, 0
         b0 = b1 = b2 = 0.0
-        for s in range(start[cell_id], start[cell_id + 1]):
-            t = items[s]
+        first = hint[q] if hint.size else -1
+        for s in range(start[cell_id] - (1 if first >= 0 else 0), start[cell_id + 1]):
+            t = items[s] if s >= start[cell_id] else first
             # the distance to the triangle's own box (the grown box shrunk by reach) bounds the distance to it from
             # below: a triangle whose box is farther than the best so far cannot be closer
             box2 = 0.0
@@ -210,8 +214,6 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
                 d2 += r * r
             if d2 <= best:
                 best, best_t, best_f, b0, b1, b2 = d2, t, feature, c0, c1, c2
-                if mark:  # one triangle within reach is enough
-                    break
         if best_t < 0:
             continue
         if mark:
