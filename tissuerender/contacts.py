@@ -151,6 +151,8 @@ class GroupStepper:
         return parts[0]
 
     def __getattr__(self, name):
+        if name.startswith("__") or name == "integrator":  # unpickling looks these up before __dict__ is filled
+            raise AttributeError(name)
         return getattr(self.integrator, name)
 
 
