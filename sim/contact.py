@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 
 @dataclass
@@ -39,11 +40,13 @@ class Grasp:
 
 @dataclass
 class ContactPlane:
-    """Static plane through ``point`` with unit outward ``normal``; Coulomb coefficient ``friction``."""
+    """Static plane through ``point`` with unit outward ``normal``; Coulomb coefficient ``friction``; acting on
+    ``nodes`` only (None: every node; a body's own nodes in a merged model, ``sim.contact_bodies``)."""
 
     point: np.ndarray
     normal: np.ndarray
     friction: float = 0.0
+    nodes: np.ndarray | None = None
 
     def __post_init__(self):
         self.point = np.asarray(self.point, dtype=np.float64).reshape(3)
@@ -128,24 +131,20 @@ class PlaneState:
     def __init__(self, plane: ContactPlane, n_nodes: int):
         self.plane = plane
         self.dn = np.zeros(n_nodes)
+        self.acts = None  # (n,) bool: the nodes it acts on, None: all
+        if plane.nodes is not None:
+            self.acts = np.zeros(n_nodes, dtype=bool)
+            self.acts[np.asarray(plane.nodes, dtype=np.int64)] = True
 
     def reset(self) -> None:
         self.dn[:] = 0.0
 
     def project(self, x: np.ndarray, w: np.ndarray, load: np.ndarray) -> None:
         """Move the free nodes below the plane onto it; adds ``sum m dx`` to ``load[:3]`` and its moment about the
-        plane's ``point`` to ``load[3:]``."""
+        plane's ``point`` to ``load[3:]`` (:func:`project_onto_plane`)."""
         p = self.plane
-        d = (x - p.point) @ p.normal
-        below = np.flatnonzero((d < 0.0) & (w > 0.0))
-        if not below.size:
-            return
-        depth = -d[below]
-        x[below] += depth[:, None] * p.normal
-        self.dn[below] += depth
-        j = (depth / w[below])[:, None] * p.normal
-        load[:3] += j.sum(axis=0)
-        load[3:] += np.cross(x[below] - p.point, j).sum(axis=0)
+        acts = self.acts if self.acts is not None else np.ones(0, dtype=bool)
+        project_onto_plane(x, w, p.point, p.normal, acts, self.dn, load)
 
     def friction(self, x: np.ndarray, x_prev: np.ndarray, w: np.ndarray, load: np.ndarray) -> None:
         """Coulomb friction on the nodes that touched the plane this substep (static or kinetic)."""
@@ -165,3 +164,31 @@ class PlaneState:
         j = corr / w[touched][:, None]
         load[:3] += j.sum(axis=0)
         load[3:] += np.cross(x[touched] - self.plane.point, j).sum(axis=0)
+
+
+@njit(cache=True)
+def project_onto_plane(x, w, point, normal, acts, dn, load):
+    """Every free node (``w > 0``; of ``acts`` if not empty) below the plane ``n . (x - point) >= 0`` moved onto it
+    along ``n``; its depth added to ``dn``, its impulse ``m dx`` to ``load[:3]`` and its moment about ``point`` to
+    ``load[3:]``. A kernel: it runs in every sweep."""
+    for i in range(x.shape[0]):
+        if w[i] <= 0.0 or (acts.size and not acts[i]):
+            continue
+        d = ((x[i, 0] - point[0]) * normal[0] + (x[i, 1] - point[1]) * normal[1]
+             + (x[i, 2] - point[2]) * normal[2])
+        if d >= 0.0:
+            continue
+        depth = -d
+        x[i, 0] += depth * normal[0]
+        x[i, 1] += depth * normal[1]
+        x[i, 2] += depth * normal[2]
+        dn[i] += depth
+        m = depth / w[i]
+        jx, jy, jz = m * normal[0], m * normal[1], m * normal[2]
+        rx, ry, rz = x[i, 0] - point[0], x[i, 1] - point[1], x[i, 2] - point[2]
+        load[0] += jx
+        load[1] += jy
+        load[2] += jz
+        load[3] += ry * jz - rz * jy
+        load[4] += rz * jx - rx * jz
+        load[5] += rx * jy - ry * jx

@@ -37,8 +37,13 @@ class Probe:
             raise ValueError(f"probe kind must be one of {', '.join(self.KINDS)}, found {self.kind!r}")
 
     def position(self, t: float) -> np.ndarray:
-        """Path point at time ``t`` (linear between keyframes, held before the first and after the last)."""
-        return np.array([np.interp(t, self.times, self.positions[:, k]) for k in range(3)])
+        """Path point at time ``t`` (linear between keyframes, held before the first and after the last). The last
+        one is kept: every sweep of a substep asks for the same time."""
+        last = getattr(self, "_last", None)
+        if last is None or last[0] != t:
+            last = (t, np.array([np.interp(t, self.times, self.positions[:, k]) for k in range(3)]))
+            self._last = last
+        return last[1].copy()
 
     def segment(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         c = self.position(t)
@@ -48,6 +53,13 @@ class Probe:
     def capsules(self, t: float) -> list[tuple]:
         """The capsules (a, b, radius) the probe is made of at ``t``: here its one segment."""
         return [(*self.segment(t), float(self.radius))]
+
+    def push_out(self, x: np.ndarray, t: float, inv_mass: np.ndarray, load: np.ndarray) -> int:
+        """Project the free nodes out of the probe at ``t``, summing into ``load`` (:func:`resolve_contact_load`):
+        every capsule in turn (a mesh tool, ``sim.contact_bodies.MeshProbe``, its triangles instead)."""
+        centre = self.position(t)
+        return sum(int(push_out_of_capsule_load(x, inv_mass, a, b, float(r), centre, load))
+                   for a, b, r in self.capsules(t))
 
 
 def resolve_contact(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray) -> int:
@@ -99,6 +111,4 @@ def push_out_of_capsule_load(x, inv_mass, a, b, radius, centre, load):
 def resolve_contact_load(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray, load: np.ndarray) -> int:
     """:func:`resolve_contact`, summing into ``load`` (6,) the mass-weighted displacement and its moment about the
     probe's centre at ``t`` (:func:`push_out_of_capsule_load`), over every capsule of the probe."""
-    centre = probe.position(t)
-    return sum(int(push_out_of_capsule_load(x, inv_mass, a, b, float(r), centre, load))
-               for a, b, r in probe.capsules(t))
+    return probe.push_out(x, t, inv_mass, load)

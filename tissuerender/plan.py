@@ -95,7 +95,8 @@ def make_plan(scene: Scene) -> Plan:
             f"(supported by {', '.join(supported_by('fibres'))})") if fibred else
            ("no simulated anisotropic material" if simulate else "no simulation"))
     floors = any(o.kind == "body" and o.floor is not None for o in scene.objects)  # issue 21 item 4
-    decide("contact", simulate and (bool(scene.tools) or floors), "tools or floors touch the tissue",
+    decide("contact", simulate and (bool(scene.tools) or floors or bool(scene.contacts)),
+           "tools, floors or contacts touch the tissue",
            "no tools" if not scene.tools else "no simulation")
     decide("embed", simulate, "render surfaces follow the simulated tets", "render surfaces stay at rest")
     decide("write_vtu", simulate and ("vtu" in scene.output.formats or scene.simulation.write_vtu),

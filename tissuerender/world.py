@@ -14,6 +14,7 @@ from sim.errors import SimulationDiverged
 from sim.model import State
 from sim.probe import Probe
 from tissuerender import instruments
+from tissuerender.contacts import GroupStepper, add_contact_loads, attach_contacts, contact_names, mesh_tool_probe
 from tissuerender.bodies import Body, StaticSurface, build_body, build_static_surface
 from tissuerender.errors import UserError
 from tissuerender.files import write_atomic
@@ -54,7 +55,7 @@ def build_world(scene: Scene, plan: Plan, recorder: StageRecorder) -> World:
             surfaces = [build_static_surface(o, i, scene) for i, o in enumerate(scene.objects) if o.kind == "surface"]
     world = World(bodies, surfaces)
     if "contact" in plan:
-        world.tool_loads = np.zeros((len(scene.tools) + len(floor_names(scene)), 6))
+        world.tool_loads = np.zeros((len(scene.tools) + len(floor_names(scene)) + len(scene.contacts), 6))
     if "simulate" in plan:
         probes = [make_probe(t) for t in scene.tools] if "contact" in plan else []
         sim = scene.simulation
@@ -66,10 +67,34 @@ def build_world(scene: Scene, plan: Plan, recorder: StageRecorder) -> World:
             body.model.grasps = list(grasps)  # sim.contact, xpbd only (interaction_schema.check_interaction)
             body.model.contact_planes = [] if body.spec.floor is None else [body.spec.floor.to_sim()]
             body.model.cuts = [c.to_sim(k, t.kind) for k, t in enumerate(scene.tools) for c in t.cut] if probes else []
-            try:
-                world.integrators.append(integrators.make_integrator(sim.integrator, body.model, settings))
-            except (NotImplementedError, ValueError) as e:
-                raise UserError(f"{scene.path}: [simulation.{sim.integrator}] for object {body.spec.name!r}: {e}") from None
+        if scene.contacts and any(t.cut for t in scene.tools):
+            # a cut rebuilds one body's tets; a contact group steps several bodies as one merged model
+            raise UserError(f"{scene.path}: tools[{next(k for k, t in enumerate(scene.tools) if t.cut)}].cut: cutting "
+                            "is not supported together with [[contacts]] between bodies; remove one of them")
+        # [[contacts]]: bodies touching each other stepped as one model by their first member (tissuerender.contacts)
+        try:
+            groups, contact_rows = attach_contacts(scene, bodies, surfaces, len(scene.tools) + len(floor_names(scene)))
+        except ValueError as e:
+            raise UserError(f"{scene.path}: contacts: {e}") from None
+        first_of = {g.members[0]: g for g in groups}
+        grouped = {i for g in groups for i in g.members}
+        floor_row = dict(zip([i for i, b in enumerate(bodies) if b.spec.floor is not None],
+                             range(len(scene.tools), len(scene.tools) + len(floor_names(scene)))))
+        for i, body in enumerate(bodies):
+            group = first_of.get(i)
+            integrator = None
+            if group is not None or i not in grouped:
+                try:
+                    integrator = integrators.make_integrator(sim.integrator, group.group.model if group else body.model,
+                                                             settings)
+                except (NotImplementedError, ValueError) as e:
+                    raise UserError(f"{scene.path}: [simulation.{sim.integrator}] for object {body.spec.name!r}: {e}") from None
+                if group is not None:
+                    group.floor_rows = [(floor_row[m], k) for k, m in enumerate(m for m in group.members if m in floor_row)]
+                    integrator = GroupStepper(world, group, integrator)
+                elif contact_rows.get(i):
+                    integrator.contact_rows = contact_rows[i]
+            world.integrators.append(integrator)  # None: stepped with its contact group's first member
             world.states.append(State.at_rest(body.model))
     return world
 
@@ -83,6 +108,8 @@ def make_probe(tool) -> Probe:
     """The simulation's rigid probe for a scene tool (its keyframed path)."""
     if tool.kind in instruments.INSTRUMENT_KINDS:
         return instruments.InstrumentProbe(tool)
+    if tool.kind == "mesh":
+        return mesh_tool_probe(tool)
     times = np.array([k.t for k in tool.keyframes], dtype=np.float64)
     positions = np.array([k.position for k in tool.keyframes], dtype=np.float64)
     return Probe(kind=tool.kind, radius=tool.radius, times=times, positions=positions,
@@ -105,6 +132,9 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
         for i, integrator in enumerate(world.integrators):
             has_floor = world.bodies[i].spec.floor is not None
             name = world.bodies[i].spec.name
+            if integrator is None:  # stepped with its contact group (tissuerender.contacts.GroupStepper)
+                floor_row += has_floor
+                continue
             for j in range(n):
                 state = world.states[i]
                 state.t = f / fps + j * dt
@@ -120,8 +150,9 @@ def advance(world: World, scene: Scene, recorder: StageRecorder) -> None:
                 if loads is not None:
                     step_loads = getattr(integrator, "tool_loads", None)
                     loads[:len(scene.tools)] += np.nan if step_loads is None else step_loads / n
-                    if has_floor:
-                        loads[floor_row] += integrator.plane_loads[0] / n
+                    for row, plane in getattr(integrator, "floor_rows", None) or ([(floor_row, 0)] if has_floor else []):
+                        loads[row] += integrator.plane_loads[plane] / n
+                    add_contact_loads(loads, integrator, n)
                 bad = ~np.isfinite(state.x).all(axis=1)
                 if bad.any():
                     raise SimulationFailed(
@@ -163,7 +194,7 @@ class ToolForceLog:
     Integrators other than xpbd resolve no tool contact forces: NaN."""
 
     def __init__(self, scene: Scene):
-        self.names = [t.name for t in scene.tools] + floor_names(scene)
+        self.names = [t.name for t in scene.tools] + floor_names(scene) + contact_names(scene)
         self.rows: dict[int, tuple[float, np.ndarray]] = {}
 
     def record(self, frame: int, t: float, world: World) -> None:

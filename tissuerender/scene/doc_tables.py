@@ -69,6 +69,7 @@ SECTIONS: tuple[Section, ...] = (
     Section("tools.keyframes", schema.Keyframe),
     Section("tools.grasp", schema.GraspSpec),
     Section("tools.cut", schema.CutSpec),
+    Section("contacts", schema.ContactSpec),
     Section("camera", schema.Camera),
     Section("camera.path", schema.CameraKeyframe),
     Section("camera.lens", schema.CameraLens),

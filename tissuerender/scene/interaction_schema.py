@@ -3,7 +3,10 @@
 - a tool's ``grasp = [{t_close, t_release, radius, compliance, tear_force}]``: its jaws close at ``t_close`` on the
   body nodes within ``radius`` of its path point and let go at ``t_release`` (``sim.contact.Grasp``);
 - a body's ``floor = {point, normal, friction}``: a static plane it cannot pass, with Coulomb friction
-  (``sim.contact.ContactPlane``); the force on it is reported in ``tool_forces.csv`` (row ``floor:<object>``).
+  (``sim.contact.ContactPlane``); the force on it is reported in ``tool_forces.csv`` (row ``floor:<object>``);
+- ``[[contacts]] bodies = ["a", "b"], friction = mu``: two bodies, or a body and a static surface, that cannot pass
+  through each other, with Coulomb friction (``sim.contact_bodies``, ``tissuerender.contacts``); the force on ``b``
+  from ``a`` is reported in ``tool_forces.csv`` (row ``contact:a:b``).
 
 Both are XPBD constraints: :func:`check_interaction` rejects them, naming the key and the integrator, in a scene
 simulated by another integrator, or not simulated at all.
@@ -48,6 +51,17 @@ class GraspSpec(_Strict):
                      compliance=self.compliance, tear_force=self.tear_force)
 
 
+class ContactSpec(_Strict):
+    bodies: Annotated[list[Annotated[str, Field(min_length=1, max_length=200)]], Field(
+        min_length=2, max_length=2, description=(
+            "two object names: two bodies, or a body and a static surface (its triangles' winding gives its outside)"))]
+    friction: Annotated[float, Field(ge=0.0, le=10.0)] = Field(0.0, description=(
+        "Coulomb friction coefficient (static and kinetic); 0: frictionless"))
+    reach: Annotated[float, Field(gt=0.0, le=10.0)] | None = Field(None, description=(
+        "deepest a node is found inside the other's surface [m]; default: a body's mean boundary edge, a static "
+        "surface's mean edge or half its box's smallest side, whichever is larger"))
+
+
 class FloorSpec(_Strict):
     point: Annotated[list[float], Field(min_length=3, max_length=3, description="a point of the plane [m]")]
     normal: Annotated[list[float], Field(min_length=3, max_length=3, description=(
@@ -69,6 +83,22 @@ def check_interaction(scene):
     """``(key, message)`` for a grasp or floor that would have no effect (or cannot be honoured), else None."""
     uses = [(f"tools[{i}].grasp", "grasping") for i, t in enumerate(scene.tools) if t.grasp]
     uses += [(f"objects[{i}].floor", "a contact floor") for i, o in enumerate(scene.objects) if o.floor is not None]
+    contacts = getattr(scene, "contacts", ())
+    uses += [(f"contacts[{i}]", "contact between objects") for i in range(len(contacts))]
+    kinds = {o.name: o.kind for o in scene.objects}
+    pairs = set()
+    for i, c in enumerate(contacts):
+        for name in c.bodies:
+            if name not in kinds:
+                return f"contacts[{i}].bodies", f"expected object names, found {name!r}, which is not an object"
+        a, b = c.bodies
+        if a == b:
+            return f"contacts[{i}].bodies", f"expected two different objects, found {a!r} twice (no self-contact)"
+        if kinds[a] == kinds[b] == "surface":
+            return f"contacts[{i}].bodies", f"{a!r} and {b!r} are both static surfaces: expected at least one body"
+        if frozenset(c.bodies) in pairs:
+            return f"contacts[{i}].bodies", f"the pair {a!r}, {b!r} is listed twice"
+        pairs.add(frozenset(c.bodies))
     for i, o in enumerate(scene.objects):
         if o.floor is not None and o.kind == "surface":
             return f"objects[{i}].floor", "a static surface is never simulated: a floor has no effect on it; remove it"

@@ -43,6 +43,8 @@ class SceneFile(BaseModel):
     simulation: schema.Simulation = Field(schema.Simulation(), description="how bodies move")
     tools: Annotated[list[schema.Tool], Field(max_length=16, description=(
         "rigid probes on keyframed paths: drawn, and pushing simulated tissue"))] = []
+    contacts: Annotated[list[schema.ContactSpec], Field(max_length=64, description=(
+        "pairs of objects that cannot pass through each other, with friction (xpbd; table below)"))] = []
     camera: schema.Camera = Field(description="the laparoscope's view")
     light: schema.Light = Field(schema.Light(), description="a rectangular area light")
     effects: dict = Field({}, description="renderer switches and post-effect tables (validated as schema.Effects)")
@@ -63,6 +65,7 @@ class Scene:
     light: schema.Light
     effects: schema.EffectsBase
     output: schema.Output
+    contacts: tuple = ()  # ContactSpec: body-body and body-surface contact (tissuerender.contacts)
 
     @property
     def name(self) -> str:
@@ -210,11 +213,13 @@ def scene_from_data(data: dict, path, sha256: str) -> Scene:
         info=parsed.scene,
         objects=tuple(parsed.objects),
         simulation=parsed.simulation,
-        tools=tuple(parsed.tools),
+        # a mesh tool's file resolved against the scene's folder (its probe and drawing are built from the tool alone)
+        tools=tuple(t.model_copy(update={"mesh": str(path.parent / t.mesh)}) if t.mesh else t for t in parsed.tools),
         camera=parsed.camera,
         light=parsed.light,
         effects=effects,
         output=parsed.output,
+        contacts=tuple(parsed.contacts),
     )
     _check_references(scene)
     return scene
@@ -252,6 +257,11 @@ def _check_references(scene: Scene) -> None:
             if n > MAX_TETS:
                 raise SceneError(p, f"{key}.cell_size",
                                  f"expected at most {MAX_TETS} tets, found about {n} for this size and cell size")
+    for i, tool in enumerate(scene.tools):
+        if tool.mesh is not None and (Path(tool.mesh).suffix.lower() not in SURFACE_SUFFIXES
+                                      or not scene.resolve(tool.mesh).is_file()):
+            raise SceneError(p, f"tools[{i}].mesh", f"expected a {'/'.join(SURFACE_SUFFIXES)} file, found {tool.mesh!r}"
+                             f" ({scene.resolve(tool.mesh)} {'exists' if scene.resolve(tool.mesh).is_file() else 'not found'})")
     tool_names = [t.name for t in scene.tools]
     if len(set(tool_names)) != len(tool_names):
         raise SceneError(p, "tools", f"expected unique tool names, found {tool_names}")

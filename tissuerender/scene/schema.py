@@ -23,7 +23,7 @@ from sim.integrators.xpbd.settings import XPBDSceneSettings
 from tissuerender.scene.camera_schema import CameraKeyframe, CameraLens, check_path, degenerate_view
 from tissuerender.scene.bc_schema import HeldComponents
 from tissuerender.scene.cut_schema import CUT_MATERIALS, CutSpec
-from tissuerender.scene.interaction_schema import FloorSpec, GraspSpec
+from tissuerender.scene.interaction_schema import ContactSpec, FloorSpec, GraspSpec  # noqa: F401 (ContactSpec: load.SceneFile)
 from tissuerender.scene.optics_schema import LayerOverride
 from tissuerender.scene.shapes import SHAPES
 
@@ -227,9 +227,14 @@ class Keyframe(Strict):
 
 class Tool(Strict):
     name: Annotated[str, Field(min_length=1, max_length=200, description="unique among tools")]
-    kind: Literal["sphere", "capsule", "grasper", "l_hook"] = Field("sphere", description=(
-        "rigid probe shape; grasper and l_hook: steel instruments made of capsules (docs/interaction.md)"))
-    radius: Annotated[float, Field(gt=0.0, le=10.0, description="probe radius [m]")]
+    kind: Literal["sphere", "capsule", "grasper", "l_hook", "mesh"] = Field("sphere", description=(
+        "rigid probe shape; grasper and l_hook: steel instruments made of capsules; mesh: a closed triangle mesh "
+        "file (docs/interaction.md)"))
+    radius: Annotated[float, Field(gt=0.0, le=10.0)] | None = Field(None, description=(
+        "probe radius [m] (required, except for a mesh)"))
+    mesh: str | None = Field(None, description=(
+        "kind = \"mesh\": a closed, outward-wound triangle mesh (.obj, .ply, .stl) relative to the scene, its "
+        "coordinates [m] relative to the keyframed position"))
     length: Annotated[float, Field(ge=0.0, le=10.0, description=(
         "capsule segment length [m] (> 0 for a capsule); an instrument's shaft length behind its tip (> 0)"))] = 0.0
     axis: Vec3 = Field([0.0, 0.0, 1.0], description=(
@@ -248,8 +253,15 @@ class Tool(Strict):
         times = [k.t for k in self.keyframes]
         if any(b <= a for a, b in zip(times, times[1:])):
             raise ValueError(f"keyframe times must increase strictly, found {times}")
-        if self.kind != "sphere" and self.length <= 0.0:
+        if self.kind not in ("sphere", "mesh") and self.length <= 0.0:
             raise ValueError(f"a {self.kind} needs length > 0")
+        if (self.kind == "mesh") != (self.mesh is not None) or (self.kind != "mesh") == (self.radius is None):
+            raise ValueError("a mesh tool needs 'mesh' and takes no radius; every other kind needs 'radius' and no "
+                             f"'mesh' (kind {self.kind!r})")
+        if self.kind == "mesh" and self.cut:
+            raise ValueError("a mesh tool cannot cut: a blade is a sphere, a capsule or an instrument's jaws or hook")
+        if self.kind == "mesh" and any(g.radius is None for g in self.grasp):
+            raise ValueError("a mesh tool's grasp needs its own radius (the default is 1.5 tool radii)")
         for k in self.keyframes:
             if k.orientation is not None and sum(c * c for c in k.orientation) < 1e-12:
                 raise ValueError(f"keyframe t = {k.t}: orientation must be a non-zero quaternion, found {k.orientation}")

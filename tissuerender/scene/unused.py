@@ -115,10 +115,10 @@ def _simulation(scene):
 def _tools(scene):
     for i, tool in enumerate(scene.tools):
         given = _set(tool)
-        if tool.kind == "sphere":
+        if tool.kind in ("sphere", "mesh"):
             for name in ("length", "axis"):
                 if name in given:
-                    return f"tools[{i}].{name}", "a sphere has no axis or length (only a capsule); remove it"
+                    return f"tools[{i}].{name}", f"a {tool.kind} has no axis or length (only a capsule); remove it"
         instrument = tool.kind in ("grasper", "l_hook")
         for j, k in enumerate(tool.keyframes):
             for name in ("orientation", "jaw_deg"):

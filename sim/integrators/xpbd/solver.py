@@ -42,6 +42,7 @@ from sim.integrators.xpbd.settings import XPBDSettings, limit_boxes
 from sim.integrators.xpbd.strain import GreenStrainLimits
 from sim.contact import GraspState, PlaneState
 from sim.cutting import Cutter
+from sim.contact_bodies import SurfaceContactState
 from sim.model import Model, State
 from sim.probe import resolve_contact_load
 
@@ -115,6 +116,7 @@ class XPBD:
     name = "xpbd"
     tool_loads: np.ndarray | None = None  # (probes, 6): force [N] and torque [N m] on each tool, last step
     plane_loads: np.ndarray | None = None  # (planes, 6): force [N], torque about its point [N m] on each plane, last step
+    contact_loads: np.ndarray | None = None  # (pairs, 6): force [N] and torque [N m] on each contact pair's second member
 
     def __init__(self, model: Model, settings: XPBDSettings | dict | None = None):
         settings = XPBDSettings.of(settings)
@@ -158,6 +160,9 @@ class XPBD:
         # grasps and static contact planes (sim.contact), optional attributes of the model
         self.grasps = [GraspState(g, m.probes[g.probe]) for g in getattr(m, "grasps", ())]
         self.planes = [PlaneState(p, m.n_nodes) for p in getattr(m, "contact_planes", ())]
+        # contact with triangle surfaces: other bodies of a merged model, static meshes (sim.contact_bodies)
+        self.contacts = [SurfaceContactState(c, m.X) for c in getattr(m, "contacts", ())]
+        self.contact_pairs = max((c.pair + 1 for c in getattr(m, "contacts", ())), default=0)
         # cuts (sim.cutting), an optional attribute of the model: tets removed at the start of a substep
         self.cutter = Cutter(m) if getattr(m, "cuts", ()) else None
 
@@ -217,11 +222,12 @@ class XPBD:
         # with probes, limits or several constraint sets, those are visited after every sweep; else
         # one kernel call does all the iterations
         per_sweep = (bool(m.probes) or self.strain_limits is not None or self.green_limits is not None
-                     or not self.partial.empty or bool(self.planes))
+                     or not self.partial.empty or bool(self.planes) or bool(self.contacts))
         per_call = 1 if per_sweep or len(self.sets) > 1 else self.iterations
         loads = np.zeros((len(m.probes), 6))  # per probe: sum of m dx and its moment, over this step
         substep_load = np.zeros(6)
         plane_loads = np.zeros((len(self.planes), 6))
+        contact_loads = np.zeros((self.contact_pairs, 6))
         for _ in range(self.substeps):
             t_next = t + h
             if self.cutter is not None:  # the blades remove the tets they sweep through over this substep
@@ -248,6 +254,8 @@ class XPBD:
             for plane in self.planes:
                 plane.reset()
             probes = m.probes if self.cutter is None else self.cutter.contact_probes(m.probes, t, t_next)
+            for contact in self.contacts:
+                contact.begin(x)
             for _ in range(self.iterations // per_call):
                 for constraints in self.sets:
                     constraints.sweeps(x, inv_dt2, per_call)
@@ -264,12 +272,16 @@ class XPBD:
                     grasp.project(x, self.w, t_next, inv_dt2, loads[grasp.grasp.probe])
                 for k, plane in enumerate(self.planes):
                     plane.project(x, self.w, plane_loads[k])
+                for contact in self.contacts:
+                    contact.project(x, self.w, contact_loads[contact.spec.pair])
                 # a zero-compliance constraint on the held components, projected last in each sweep (Gauss-Seidel):
                 # the converged state is XPBD's with the generalised inverse mass P / m on these nodes
                 self.partial.place(x, t_next)
             for k, plane in enumerate(self.planes):
                 plane.friction(x, x_prev, self.w, plane_loads[k])
-            if self.planes:
+            for contact in self.contacts:
+                contact.friction(x, x_prev, self.w, contact_loads[contact.spec.pair])
+            if self.planes or self.contacts:
                 self.partial.place(x, t_next)
             for grasp in self.grasps:
                 grasp.tear(inv_dt2)
@@ -283,6 +295,7 @@ class XPBD:
         # m dx / h of every substep, divided by the step (sum over substeps of (m dx / h^2) h / dt)
         self.tool_loads = -loads / (h * dt)
         self.plane_loads = -plane_loads / (h * dt)
+        self.contact_loads = contact_loads / (h * dt)  # the SurfaceContact signs give the force on the second member
         if self.branches is not None:
             self.branches.relax(x, dt)
             for constraints, (_, rest) in zip(self.sets[1:], self.branches.sets()[1:]):
