@@ -21,6 +21,7 @@ import numpy as np
 from sim.cutting.sweep import blade_hits
 from sim.cutting.topology import Cut, CutTopology, filter_model
 from sim.model import Model
+from sim.probe import Probe
 
 __all__ = ["Cut", "CutState", "Cutter", "CutTopology", "filter_model"]
 
@@ -69,6 +70,8 @@ class Shaft:
 
     def capsules(self, t: float) -> list[tuple]:
         return self.probe.capsules(t)[:self.blade_from]
+
+    push_out = Probe.push_out  # its capsules pushed out like any probe's (sim.probe.resolve_contact_load)
 
 
 class Cutter:
