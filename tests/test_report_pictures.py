@@ -18,10 +18,11 @@ def _colour_indices(image: np.ndarray) -> np.ndarray:
     import matplotlib
 
     lut = np.round(matplotlib.colormaps[COLORMAP](np.linspace(0.0, 1.0, 256))[:, :3] * 255.0)
-    pixels = image.reshape(-1, 3).astype(np.float64)
-    distance = np.abs(pixels[:, None, :] - lut[None, :, :]).sum(axis=2)
+    colours, counts = np.unique(image.reshape(-1, 3), axis=0, return_counts=True)
+    distance = np.abs(colours[:, None, :].astype(np.float64) - lut[None, :, :]).sum(axis=2)
     nearest = distance.argmin(axis=1)
-    return nearest[distance[np.arange(len(pixels)), nearest] <= 12.0]
+    close = distance[np.arange(len(colours)), nearest] <= 12.0
+    return np.repeat(nearest[close], counts[close])  # one entry per pixel
 
 
 def test_error_field_picture_shows_the_colour_maps_whole_range_on_the_mesh():

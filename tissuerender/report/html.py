@@ -352,7 +352,8 @@ def mitsuba_png(case: dict) -> bytes:
     for s in case["scenes"]:
         m = [p["samples"] for p in s["points"]]
         line, = left.plot(m, [p["flip"] for p in s["points"]], "o-", label=s["scene"])
-        left.axhline(s["mitsuba_self_flip"], color=line.get_color(), ls=":", lw=1)
+        if s["mitsuba_self_flip"] is not None and math.isfinite(s["mitsuba_self_flip"]):
+            left.axhline(s["mitsuba_self_flip"], color=line.get_color(), ls=":", lw=1)
         right.plot(m, [p["brightness_ratio"] for p in s["points"]], "o-", color=line.get_color(), label=s["scene"])
     left.set_xscale("log", base=2)
     left.set_yscale("log")

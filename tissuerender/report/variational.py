@@ -7,8 +7,9 @@ them, without the tool), released at rest under gravity, one backward-Euler step
 
     f(x) = 1/(2 h^2) (x - x~)^T M (x - x~) + E(x) - f_ext . x,    x~ = x_n + h v_n = X (at rest)
 
-with E the model's elastic energy (stable Neo-Hookean for the liver; XPBD runs ``material = "model"``, the same
-energy, one substep of h, no damping). Variational error, Qian eq. 4.45 with the inertia term (docs/design.md,
+with E the model's elastic energy (stable Neo-Hookean for the liver). XPBD runs one substep of h, no damping, twice:
+with ``material = "model"`` (the same energy as one constraint per tet, ``C = sqrt(2 V Psi)``: the claim's measure)
+and with its default stable Neo-Hookean constraints (Macklin & Müller 2021, what the scene runs). Variational error, Qian eq. 4.45 with the inertia term (docs/design.md,
 "Qian 4.45"): ``(f(x_k) - f(x*)) / (f(x_0) - f(x*))``, x_0 = x~ with the held nodes in place (where both solvers
 start), x* the reference (Newton to a relative gradient of 1e-10). Newton's k-th iterate is that of the
 reference's own step (exact Hessian where it descends, else the PSD-projected one; backtracking line search),
