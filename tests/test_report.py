@@ -131,7 +131,7 @@ def test_html_embeds_every_figure_and_lists_every_claim(report_dir):
                          r'src="data:image/png;base64,([^"]+)"', text)
     # error against time for every case, the displacement along the measurement line for the mesh cases
     assert sorted((name, kind) for name, kind, _ in figures) == sorted(
-        [(name, "error-time") for name in CASES] + [("cylinder_extension", "line")])
+        [(name, "error-time") for name in CASES] + [("cylinder_extension", "line"), ("cylinder_extension", "error-field")])
     assert text.count("<img") == len(figures)
     for _, _, data in figures:
         assert base64.b64decode(data)[:8] == b"\x89PNG\r\n\x1a\n"

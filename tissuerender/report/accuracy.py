@@ -223,6 +223,8 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
               "level": level, "sweeps": {n: case_runs.sweep_for(n, level) for n in names},
               "versions": versions, "code_sha256": code, "machine": machine(),
               "wall_s": time.perf_counter() - start, "case_wall_s": timings,
+              "part_wall_s": {**timings, **{name: part["computed_wall_s"] for name, part in
+                                            (("stage_costs", costs), ("render_sweeps", sweeps)) if part}},
               "cases": results, "scene": scene_result, "stage_costs": costs, "render_sweeps": sweeps,
               "claims": claims_table({**results, **({"render_sweeps": sweeps} if sweeps else {})}),
               "claims_listed": [c.id for c in CLAIMS],

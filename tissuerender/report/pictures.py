@@ -99,7 +99,7 @@ def error_field_image(fields: dict, scalar_bars: bool = True, labels: bool = Tru
                 plotter.add_text(f"{panel['which']}: {panel['setting']}\n{fields['error_key']} {panel['error']:.3g}",
                                  font_size=8, color="black", position="upper_left")
             plotter.view_isometric()
-            plotter.camera.zoom(0.85)
+            plotter.camera.zoom(0.75)
         image = plotter.screenshot(return_img=True)
     finally:
         plotter.close()
