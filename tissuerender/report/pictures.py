@@ -91,7 +91,7 @@ def error_field_image(fields: dict, scalar_bars: bool = True, labels: bool = Tru
             plotter.add_mesh(mesh, scalars="error", cmap=COLORMAP, clim=(0.0, top), lighting=False,
                              show_scalar_bar=scalar_bars,
                              scalar_bar_args={"title": f"{panel['which']}: error [m]", "vertical": True,
-                                              "position_x": 0.74, "position_y": 0.1, "width": 0.08, "height": 0.7,
+                                              "position_x": 0.8, "position_y": 0.1, "width": 0.07, "height": 0.7,
                                               "fmt": "%.1e",
                                               "color": "black", "title_font_size": 12, "label_font_size": 10})
             plotter.add_mesh(mesh.extract_feature_edges(30.0), color="black", line_width=1)
@@ -99,7 +99,8 @@ def error_field_image(fields: dict, scalar_bars: bool = True, labels: bool = Tru
                 plotter.add_text(f"{panel['which']}: {panel['setting']}\n{fields['error_key']} {panel['error']:.3g}",
                                  font_size=8, color="black", position="upper_left")
             plotter.view_isometric()
-            plotter.camera.zoom(0.75)
+            plotter.reset_camera()
+            plotter.camera.zoom(0.8)
         image = plotter.screenshot(return_img=True)
     finally:
         plotter.close()
