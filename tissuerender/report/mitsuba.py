@@ -40,7 +40,7 @@ from tissuerender.world import build_world
 
 SCENES = ("kidney_static", "colon_mucosa", "liver_probe")
 SWEEPS = {
-    "full": {"max_width": 128, "samples": [1, 4, 16, 64, 256], "spp": 2048},
+    "full": {"max_width": 128, "samples": [1, 4, 16, 64, 256], "spp": 1024},
     "quick": {"max_width": 48, "samples": [1, 4, 16, 64], "spp": 512},
     "tiny": {"max_width": 48, "samples": [1, 16], "spp": 256, "self_check": False},
 }
