@@ -130,7 +130,8 @@ CLAIMS: tuple[Claim, ...] = (
     Claim("qian_frame_time_breakdown", "Qian ch. 7, Fig. 7.7",
           "the frame time split by stage (G-buffer, shadows, lighting, post-processing) of the thesis's deferred "
           "renderer", None, "-", "stage_costs", "frame_s", "none", hardware="GPU (not comparable to ours)",
-          why="measured per shipped scene in the per-stage cost section (stage_costs), but the thesis's stages are GPU passes of "
+          why="measured per shipped scene in the per-stage cost section (stage_costs), but the thesis's stages are "
+              "GPU passes of "
               "a deferred renderer on its own scene and GPU; ours are CPU stages (raster, BVH, shadows, shading, "
               "post-effects): no stage maps one to one, so no verdict"),
 )

@@ -380,7 +380,8 @@ def indentation_section(case: dict) -> str:
              f"clamped at its base; XPBD {setup['substeps']} substeps x {setup['iterations']} iterations, "
              f"{setup['steps']} steps of {setup['dt']:g} s. The reference is the quasi-static Newton solution with "
              "the touched nodes held at XPBD's positions; its reaction is the elastic force at those nodes "
-             "(tissuerender/report/indentation.py).</p>", _img(indentation_png(case), "indentation", "force against indentation")]
+             "(tissuerender/report/indentation.py).</p>",
+             _img(indentation_png(case), "indentation", "force against indentation")]
     parts.append(_table(["depth [mm]", "touched nodes", "XPBD f_z [N]", "reference f_z [N]", "XPBD / reference - 1",
                          "XPBD wall [s]", "reference wall [s]"],
                         [[_num(r["depth_mm"]), r["contact_nodes"], _num(r["xpbd_fz_N"]), _num(r["reference_fz_N"]),
@@ -443,7 +444,8 @@ def cnn_cube_section(case: dict) -> str:
     return "\n".join(parts)
 
 
-SECTIONS = {"cnn_cube": cnn_cube_section, "indentation": indentation_section, "liver_variational": variational_section, "mitsuba": mitsuba_section}
+SECTIONS = {"cnn_cube": cnn_cube_section, "indentation": indentation_section,
+            "liver_variational": variational_section, "mitsuba": mitsuba_section}
 
 def render_html(report: dict) -> str:
     cases = report["cases"]
