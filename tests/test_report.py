@@ -146,6 +146,7 @@ def test_report_json_round_trips(report_dir):
     assert json.loads((out / "report.json").read_text()) == report
     assert report["versions"]["numpy"] and report["machine"]["cpus"] >= 1
     assert [row["id"] for row in report["claims"]] == [c.id for c in CLAIMS]
+    assert set(report["part_wall_s"]) == set(CASES) and all(w > 0.0 for w in report["part_wall_s"].values())
 
 
 def test_a_second_run_reuses_the_stored_cases(report_dir):

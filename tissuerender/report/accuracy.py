@@ -183,7 +183,9 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
         for name in names:
             bar.show(name)
             sweep = case_runs.sweep_for(name, level)
-            key = finite_json({"case": name, "sweep": sweep, "versions": versions, "code": code, "format": FORMAT})
+            # cases that build scenes or render depend on all of tissuerender, not only sim/ and this package
+            case_code = (render_code or render_code_hash()) if name in case_runs.SCENE_CASES else code
+            key = finite_json({"case": name, "sweep": sweep, "versions": versions, "code": case_code, "format": FORMAT})
             path = out / "cases" / f"{name}.json"
             stored = _stored(path, key)
             if stored is None and (workers is not None or scheduler is not None or client is not None):

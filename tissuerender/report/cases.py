@@ -39,6 +39,7 @@ EXTRA = {"liver_variational": (variational.SWEEPS, variational.run_variational, 
          "cnn_cube": (cnn_cube.SWEEPS, cnn_cube.run_cnn_cube, cnn_cube.work_units),
          "mitsuba": (mitsuba.SWEEPS, mitsuba.run_mitsuba, mitsuba.work_units)}
 CASES = ("msd", *MESH_CASES, "rates", *EXTRA)
+SCENE_CASES = ("liver_variational", "mitsuba")  # they build a shipped scene (and render): keyed on all the code
 
 # sweep settings per level; "tiny" is the test suite's (not a CLI option)
 SWEEPS = {
