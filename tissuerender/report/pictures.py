@@ -13,7 +13,7 @@ Two steps, so the pictures come from stored numbers like every other figure of t
 Colours: viridis over ``[0, max error of that setting]``, one colour bar per panel (the best setting's error is
 orders of magnitude below the worst's: a shared range would show it as one flat colour). Flat, unlit colouring,
 so a pixel's colour is the colour map's colour of its interpolated error (the test reads the range back from the
-pixels) and the mesh's silhouette and feature edges carry the shape.
+pixels) and the edges sharper than 80 degrees (corners, rims) carry the shape.
 """
 from __future__ import annotations
 
@@ -94,7 +94,8 @@ def error_field_image(fields: dict, scalar_bars: bool = True, labels: bool = Tru
                                               "position_x": 0.8, "position_y": 0.1, "width": 0.07, "height": 0.7,
                                               "fmt": "%.1e",
                                               "color": "black", "title_font_size": 12, "label_font_size": 10})
-            plotter.add_mesh(mesh.extract_feature_edges(30.0), color="black", line_width=1)
+            edges = mesh.extract_feature_edges(80.0, boundary_edges=False, non_manifold_edges=False)
+            plotter.add_mesh(edges, color="black", line_width=1)  # the body's corners and rims
             if labels:
                 plotter.add_text(f"{panel['which']}: {panel['setting']}\n{fields['error_key']} {panel['error']:.3g}",
                                  font_size=8, color="black", position="upper_left")
