@@ -125,3 +125,13 @@ def test_ours_agrees_with_mitsuba_on_the_rough_plastic_kidney():
     # below benchmarks/plastic_vs_mitsuba.py's target of 0.01 (measured 0.0045; at 32 x 24 the edges alias: 0.012)
     assert all(abs(p["brightness_ratio"] - 1.0) < 0.02 for p in scene["points"])
     assert all(p["flip"] < 0.01 for p in scene["points"])
+
+
+def test_the_rate_case_keeps_its_cnn_block_beside_zhangs_cnn_cube_case():
+    # the report's CNN cube module once shadowed sim.cases.rates.cnn_cube in cases.py, and the full report's CNN
+    # energy rate (not run by --quick or the tests' sweeps) failed with "'module' object is not callable"
+    from sim.cases import rates
+    from tissuerender.report import cases
+
+    assert cases.cnn_cube is rates.cnn_cube
+    assert cases.EXTRA["cnn_cube"][1].__module__ == "tissuerender.report.cnn_cube"
