@@ -7,7 +7,8 @@ with ``--scene FILE`` that scene's report instead (its sweeps and the cheapest s
 
 Usage: .venv/bin/python benchmarks/report_accuracy.py [--quick] [-o DIR] [--scene FILE [--budget sim=1%,flip=0.002]]
 (DIR defaults to a fresh temporary folder, so nothing is reused from an earlier run.)
-The last line is one JSON object: {"<case>_<integrator>_<setting>_err": ..., "..._s_per_sim_s": ..., "claims": {...},
+The last line is one JSON object: {"wall_s": ..., "part_wall_s": {...},
+"<case>_<integrator>_<setting>_err": ..., "..._s_per_sim_s": ..., "claims": {...},
 "render_<scene>_<setting>_flip": ..., "stage_<scene>_frame_s": ..., "scene_<part>_cheapest": ...}.
 """
 from __future__ import annotations
@@ -36,8 +37,33 @@ def main() -> None:
     out = args.out or tempfile.mkdtemp(prefix="report_accuracy_")
     scene = load_scene(args.scene) if args.scene else None
     report = run_report(out, quick=args.quick, scene=scene, budget=parse_budget(args.budget))
-    result: dict = {"wall_s": round(report["wall_s"], 1)}
+    result: dict = {"wall_s": round(report["wall_s"], 1),
+                    "part_wall_s": {k: round(v, 1) for k, v in report["part_wall_s"].items()}}
     for name, case in report["cases"].items():
+        if name == "indentation":
+            for row in case["rows"]:
+                print(f"indentation {row['depth_mm']:5.1f} mm: xpbd {row['xpbd_fz_N']:.4g} N, reference "
+                      f"{row['reference_fz_N']:.4g} N ({100 * row['relative_difference']:+.2f} %)")
+                result[f"indentation_{row['depth_mm']:g}mm_rel_diff"] = float(f"{row['relative_difference']:.4g}")
+            continue
+        if name == "liver_variational":
+            for row in case["rows"]:
+                print(f"liver variational error {row['solver']:26s} {row['iterations']:5d} it: "
+                      f"{row['variational_error']:.3g}")
+            result.update({f"liver_{k}": v for k, v in case["measures"].items()})
+            continue
+        if name == "cnn_cube":
+            print(f"cnn cube: {case['measures']}")
+            continue
+        if name == "mitsuba":
+            for scene in case.get("scenes", []):
+                for p in scene["points"]:
+                    print(f"mitsuba {scene['scene']:14s} m{p['samples']:<4d} FLIP {p['flip']:.4f} "
+                          f"brightness {p['brightness_ratio']:.4f}")
+                result[f"mitsuba_{scene['scene']}_floor_flip"] = float(f"{scene['floor_flip']:.4g}")
+            if "skipped" in case:
+                print(f"mitsuba: {case['skipped']}")
+            continue
         if name == "rates":
             for row in case["rows"]:
                 print(f"{row['run']:32s} {row['steps_per_s']:10.1f} steps/s")

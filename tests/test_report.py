@@ -131,7 +131,7 @@ def test_html_embeds_every_figure_and_lists_every_claim(report_dir):
                          r'src="data:image/png;base64,([^"]+)"', text)
     # error against time for every case, the displacement along the measurement line for the mesh cases
     assert sorted((name, kind) for name, kind, _ in figures) == sorted(
-        [(name, "error-time") for name in CASES] + [("cylinder_extension", "line")])
+        [(name, "error-time") for name in CASES] + [("cylinder_extension", "line"), ("cylinder_extension", "error-field")])
     assert text.count("<img") == len(figures)
     for _, _, data in figures:
         assert base64.b64decode(data)[:8] == b"\x89PNG\r\n\x1a\n"
@@ -146,6 +146,7 @@ def test_report_json_round_trips(report_dir):
     assert json.loads((out / "report.json").read_text()) == report
     assert report["versions"]["numpy"] and report["machine"]["cpus"] >= 1
     assert [row["id"] for row in report["claims"]] == [c.id for c in CLAIMS]
+    assert set(report["part_wall_s"]) == set(CASES) and all(w > 0.0 for w in report["part_wall_s"].values())
 
 
 def test_a_second_run_reuses_the_stored_cases(report_dir):

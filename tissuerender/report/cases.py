@@ -25,13 +25,22 @@ from sim.cases.rates import cnn_cube, ebm_block, step_rate
 from sim.cases.zhang import zhang_cube_shear, zhang_cylinder
 from sim.integrators.reference import ReferenceIntegrator
 from sim.model import State
+from tissuerender.report import cnn_cube as zhang_cnn_cube  # not sim.cases.rates.cnn_cube, the rate's block
+from tissuerender.report import indentation, mitsuba, variational
 from tissuerender.report.measure import mesh_point, observed_order, pareto_front
+from tissuerender.report.pictures import error_fields
 
 # the displacement component the thesis plots along the measurement line: u_x on the cylinder (Zhang
 # Figs. 5.5(c), 5.6(c)), u_z on the cube (Fig. 5.7(c))
 LINE_COMPONENT = {"cylinder_extension": 0, "cylinder_compression": 0, "cube_shear": 2}
 MESH_CASES = tuple(LINE_COMPONENT)
-CASES = ("msd", *MESH_CASES, "rates")
+# cases of their own modules, each with SWEEPS per level, a run function and work_units
+EXTRA = {"liver_variational": (variational.SWEEPS, variational.run_variational, variational.work_units),
+         "indentation": (indentation.SWEEPS, indentation.run_indentation, indentation.work_units),
+         "cnn_cube": (zhang_cnn_cube.SWEEPS, zhang_cnn_cube.run_cnn_cube, zhang_cnn_cube.work_units),
+         "mitsuba": (mitsuba.SWEEPS, mitsuba.run_mitsuba, mitsuba.work_units)}
+CASES = ("msd", *MESH_CASES, "rates", *EXTRA)
+SCENE_CASES = ("liver_variational", "mitsuba")  # they build a shipped scene (and render): keyed on all the code
 
 # sweep settings per level; "tiny" is the test suite's (not a CLI option)
 SWEEPS = {
@@ -61,15 +70,19 @@ SWEEPS = {
         "rates": {"steps": 5, "repeats": 1, "cnn_energy": False},
     },
 }
-QUICK_CASES = ("msd", "cylinder_extension", "cube_shear", "rates")
+QUICK_CASES = ("msd", "cylinder_extension", "cube_shear", "rates", *EXTRA)
 
 
 def sweep_for(case: str, level: str) -> dict:
+    if case in EXTRA:
+        return EXTRA[case][0][level]
     return SWEEPS[level]["msd" if case == "msd" else "rates" if case == "rates" else "mesh"]
 
 
 def work_units(case: str, sweep: dict) -> int:
     """How many times ``run_case`` calls its ``tick``: the progress bar's share of the case."""
+    if case in EXTRA:
+        return EXTRA[case][2](sweep)
     if case == "msd":
         return 1
     if case == "rates":
@@ -79,6 +92,8 @@ def work_units(case: str, sweep: dict) -> int:
 
 def run_case(case: str, sweep: dict, tick=lambda: None) -> dict:
     """Run one case; ``tick()`` is called after each unit of work (``work_units`` in all)."""
+    if case in EXTRA:
+        return EXTRA[case][1](sweep, tick)
     if case == "msd":
         result = run_msd(sweep)
         tick()
@@ -226,6 +241,7 @@ def run_mesh(case_name: str, sweep: dict, tick=lambda: None) -> dict:
         n = 10
         _add(points, tick, mesh_point("cnn_chainmail", f"alpha {alpha:g}", {"alpha": alpha}, case, u_ref, component,
                                  case.ramp_time / n, n))
+    fields = error_fields(model, points, u_ref)
     convergence = _reference_convergence(case, case_name, x_ref, sweep)
     tick()
     measures = {}
@@ -244,7 +260,7 @@ def run_mesh(case_name: str, sweep: dict, tick=lambda: None) -> dict:
                           "line_coord_m": case.line_coord.tolist(),
                           "line_u_m": u_ref[case.line, component].tolist()},
             "convergence": convergence, "points": points,
-            "pareto": pareto_front(points, "rel_l2"), "measures": measures}
+            "pareto": pareto_front(points, "rel_l2"), "measures": measures, "error_fields": fields}
 
 
 # --- step rates at the thesis's sizes -----------------------------------------------------------

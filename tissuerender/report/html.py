@@ -98,6 +98,8 @@ def _table(headers: list[str], rows: list[list], cls: str = "") -> str:
 
 def _case_section(case: dict) -> str:
     name = case["case"]
+    if name in SECTIONS:
+        return SECTIONS[name](case)
     parts = [f'<h2 id="case-{name}">{html.escape(case["title"])}{" <em>(cached)</em>" if case["cached"] else ""}</h2>']
     if name == "rates":
         parts.append(f"<p>{html.escape(case['statistic'])}, one process, wall time.</p>")
@@ -112,6 +114,8 @@ def _case_section(case: dict) -> str:
         png = base64.b64encode(line_png(case)).decode("ascii")
         parts.append(f'<img class="figure" data-case="{name}" data-figure="line" alt="displacement along the line, '
                      f'{name}" src="data:image/png;base64,{png}">')
+    if case.get("error_fields"):
+        parts.append(error_field_html(case))
     ref = case["reference"]
     parts.append(f"<p>Reference: {html.escape(ref['kind'])}"
                  + (f"; mesh {case['mesh']['nodes']} nodes, {case['mesh']['tets']} tets; reference wall time "
@@ -160,6 +164,21 @@ def sweep_png(points: list[dict], pareto: list[int], error_key: str, time_key: s
 def _img(png: bytes, figure: str, alt: str) -> str:
     data = base64.b64encode(png).decode("ascii")
     return f'<img class="figure" data-figure="{figure}" alt="{html.escape(alt)}" src="data:image/png;base64,{data}">'
+
+
+def error_field_html(case: dict) -> str:
+    """The case's error-field picture (``pictures.py``), or why it is missing (no pyvista, no OpenGL)."""
+    from tissuerender.report.pictures import error_field_png
+
+    try:
+        png = error_field_png(case["error_fields"])
+    except Exception as e:  # noqa: BLE001 - a missing picture must not lose the report's numbers
+        return f"<p>Error-field picture not drawn: {html.escape(type(e).__name__)}: {html.escape(str(e)[:200])}</p>"
+    data = base64.b64encode(png).decode("ascii")
+    return (f'<img class="figure" data-case="{case["case"]}" data-figure="error-field" alt="error field on the '
+            f'deformed mesh, {case["case"]}" src="data:image/png;base64,{data}">'
+            "<p>The outer surface of the most and the least accurate setting, each deformed by its own displacement "
+            "and coloured by |u - u_ref| per node (viridis from 0 to that setting's largest error).</p>")
 
 
 def scene_section(scene: dict) -> str:
@@ -287,6 +306,146 @@ def render_sweeps_section(sweeps: dict) -> str:
                              for i, p in enumerate(scene["points"])]))
     return "\n".join(parts)
 
+
+def indentation_png(case: dict) -> bytes:
+    """Tool force against depth, XPBD's and the reference's, with the relative difference on a second axis."""
+    rows = case["rows"]
+    depth = [r["depth_mm"] for r in rows]
+    fig, ax = plt.subplots(figsize=(6.4, 3.8), dpi=80)
+    ax.plot(depth, [r["reference_fz_N"] for r in rows], "k-o", label="reference reaction (Newton)")
+    ax.plot(depth, [r["xpbd_fz_N"] for r in rows], "s--", color="tab:blue", label="XPBD tool force")
+    ax.set_xlabel("indentation depth [mm]")
+    ax.set_ylabel("force on the tool, z [N]")
+    ax.grid(True, alpha=0.3)
+    right = ax.twinx()
+    right.plot(depth, [100 * r["relative_difference"] for r in rows], "^:", color="tab:red", label="XPBD / ref - 1")
+    right.set_ylabel("XPBD / reference - 1 [%]", color="tab:red")
+    lines = ax.get_legend_handles_labels()
+    more = right.get_legend_handles_labels()
+    ax.legend(lines[0] + more[0], lines[1] + more[1], fontsize=8, loc="upper left")
+    ax.set_title(case["title"], fontsize=9)
+    return _png(fig)
+
+
+def variational_png(case: dict) -> bytes:
+    """Variational error against iterations, XPBD and Newton, log-log."""
+    fig, ax = plt.subplots(figsize=(6.4, 3.8), dpi=80)
+    for solver, style in (("xpbd (model)", "o-"), ("xpbd (stable_neo_hookean)", "v--"), ("newton", "s-")):
+        rows = [r for r in case["rows"] if r["solver"] == solver and r["variational_error"] is not None]
+        ax.plot([r["iterations"] for r in rows], [max(abs(r["variational_error"]), 1e-17) for r in rows], style,
+                label=solver)
+    ax.axhline(1e-4, color="tab:blue", ls=":", label="Qian: XPBD 1e-4 at 100 iterations")
+    ax.axhline(1e-5, color="tab:orange", ls=":", label="Qian: Newton 1e-5 at 7 iterations")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("iterations")
+    ax.set_ylabel("|variational error| (Qian eq. 4.45) [-]")
+    ax.set_title(case["title"], fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    return _png(fig)
+
+
+def mitsuba_png(case: dict) -> bytes:
+    """FLIP (left) and brightness ratio (right) of ours against Mitsuba over our light samples, one line a scene."""
+    fig, (left, right) = plt.subplots(1, 2, figsize=(8.4, 3.6), dpi=80)
+    for s in case["scenes"]:
+        m = [p["samples"] for p in s["points"]]
+        line, = left.plot(m, [p["flip"] for p in s["points"]], "o-", label=s["scene"])
+        if s["mitsuba_self_flip"] is not None and math.isfinite(s["mitsuba_self_flip"]):
+            left.axhline(s["mitsuba_self_flip"], color=line.get_color(), ls=":", lw=1)
+        right.plot(m, [p["brightness_ratio"] for p in s["points"]], "o-", color=line.get_color(), label=s["scene"])
+    left.set_xscale("log", base=2)
+    left.set_yscale("log")
+    left.set_xlabel("our light samples (2x2 supersampling)")
+    left.set_ylabel("mean FLIP against Mitsuba [-]")
+    left.set_title("FLIP; dotted: Mitsuba spp/4 against spp", fontsize=9)
+    right.axhline(1.0, color="k", lw=0.8)
+    right.set_xscale("log", base=2)
+    right.set_xlabel("our light samples")
+    right.set_ylabel("mean(ours) / mean(Mitsuba)")
+    right.set_title("brightness ratio", fontsize=9)
+    for ax in (left, right):
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    return _png(fig)
+
+
+def indentation_section(case: dict) -> str:
+    rows = case["rows"]
+    setup = case["setup"]
+    parts = [f'<h2 id="case-indentation">{html.escape(case["title"])}{" <em>(cached)</em>" if case["cached"] else ""}</h2>',
+             f"<p>A sphere (R = {setup['sphere_radius_m']:g} m) pressed quasi-statically into a {setup['block_m']:g} m "
+             f"block ({setup['cells']}^3 cells, {setup['constitutive']}, E {setup['E_Pa']:g} Pa, nu {setup['nu']:g}) "
+             f"clamped at its base; XPBD {setup['substeps']} substeps x {setup['iterations']} iterations, "
+             f"{setup['steps']} steps of {setup['dt']:g} s. The reference is the quasi-static Newton solution with "
+             "the touched nodes held at XPBD's positions; its reaction is the elastic force at those nodes "
+             "(tissuerender/report/indentation.py).</p>",
+             _img(indentation_png(case), "indentation", "force against indentation")]
+    parts.append(_table(["depth [mm]", "touched nodes", "XPBD f_z [N]", "reference f_z [N]", "XPBD / reference - 1",
+                         "XPBD wall [s]", "reference wall [s]"],
+                        [[_num(r["depth_mm"]), r["contact_nodes"], _num(r["xpbd_fz_N"]), _num(r["reference_fz_N"]),
+                          f"{100 * r['relative_difference']:+.2f} %", _num(r["xpbd_wall_s"]), _num(r["reference_wall_s"])]
+                         for r in rows]))
+    return "\n".join(parts)
+
+
+def variational_section(case: dict) -> str:
+    setup, ref = case["setup"], case["reference"]
+    parts = [f'<h2 id="case-liver_variational">{html.escape(case["title"])}{" <em>(cached)</em>" if case["cached"] else ""}</h2>',
+             f"<p>The liver of {html.escape(setup['scene'])} ({setup['nodes']} nodes, {setup['tets']} tets, "
+             f"{html.escape(setup['constitutive'])}): {html.escape(setup['what'])}, h = {_num(setup['h_s'])} s. Variational "
+             "error (Qian eq. 4.45 on the implicit-Euler objective with its inertia term): (f(x_k) - f(x*)) / "
+             f"(f(x_0) - f(x*)); x* by {html.escape(ref['kind'])} ({ref['iterations']} iterations). XPBD runs one substep "
+             "with the model's energy as one constraint per tet (material = model) and with its default stable "
+             "Neo-Hookean constraints (tissuerender/report/variational.py).</p>",
+             _img(variational_png(case), "variational", "variational error against iterations")]
+    parts.append(_table(["solver", "iterations", "variational error", "relative L2 to x*", "wall [s]"],
+                        [[html.escape(r["solver"]), r["iterations"], _num(r["variational_error"]), _num(r.get("rel_l2")),
+                          _num(r["wall_s"])] for r in case["rows"]]))
+    return "\n".join(parts)
+
+
+def mitsuba_section(case: dict) -> str:
+    cached = " <em>(cached)</em>" if case.get("cached") else ""
+    head = f'<h2 id="case-mitsuba">Rough plastic against Mitsuba 3{cached}</h2>'
+    if "skipped" in case:
+        return f"{head}<p>{html.escape(case['skipped'])}.</p>"
+    sweep = case["sweep"]
+    parts = [head, f"<p>Mitsuba {html.escape(case['mitsuba_version'])} (scalar_rgb, direct illumination, "
+             f"{sweep['spp']} spp, box filter) against ours (uniform light sampling, Monte Carlo, 2x2 supersampling) "
+             "on the rendering sweeps' scenes with every object plastic, no SSS or lens. As our light samples grow, "
+             "FLIP falls to a floor: what no sample count removes (the models' difference and our 2x2 pixel sampling "
+             "against Mitsuba's fully sampled pixels); dotted, Mitsuba's own noise (spp/4 against spp) "
+             "(tissuerender/report/mitsuba.py).</p>", _img(mitsuba_png(case), "mitsuba", "FLIP and brightness against Mitsuba")]
+    rows = []
+    for s in case["scenes"]:
+        for p in s["points"]:
+            rows.append([html.escape(s["scene"]), f"{s['resolution'][0]}x{s['resolution'][1]}", p["samples"],
+                         _num(p["flip"]), _num(p["brightness_ratio"]), _num(p["rel_rmse"]), _num(p["seconds"]),
+                         _num(s["mitsuba_self_flip"]), _num(s["mitsuba_s"])])
+    parts.append(_table(["scene", "resolution", "our samples", "FLIP", "mean ours / Mitsuba", "relative RMSE",
+                         "ours [s]", "Mitsuba self-FLIP", "Mitsuba [s]"], rows))
+    return "\n".join(parts)
+
+
+def cnn_cube_section(case: dict) -> str:
+    setup = case["setup"]
+    m = case["measures"]
+    parts = [f'<h2 id="case-cnn_cube">{html.escape(case["title"])}{" <em>(cached)</em>" if case["cached"] else ""}</h2>',
+             f"<p>{setup['nodes']} nodes, {setup['tets']} tets, linear FEM forces, Rayleigh beta "
+             f"{_num(setup['rayleigh_beta'])} s, K = {_num(setup['K'])}. At {_num(setup['small_dt'])} s the CNN and "
+             f"explicit integration differ by at most {_num(m['small_step_difference_m'])} m after "
+             f"{_num(setup['small_t'])} s (sag of the top centre {_num(m['small_step_sag_m'])} m) "
+             "(tissuerender/report/cnn_cube.py).</p>",
+             _table(["run", "simulated [s]", "peak displacement [m]", "failure", "wall [s]"],
+                    [[r["run"], _num(r["simulated_s"]), _num(r["peak_m"]), html.escape(r["diverged"] or ""),
+                      _num(r["wall_s"])] for r in case["rows"]])]
+    return "\n".join(parts)
+
+
+SECTIONS = {"cnn_cube": cnn_cube_section, "indentation": indentation_section,
+            "liver_variational": variational_section, "mitsuba": mitsuba_section}
 
 def render_html(report: dict) -> str:
     cases = report["cases"]

@@ -58,6 +58,7 @@ def mesh_point(integrator: str, label: str, settings: dict, case, u_ref, compone
         point["rel_l2"] = relative_l2(u, u_ref)
         point.update(line_errors(u, u_ref, case.line, component))
         point["line_u_m"] = u[case.line, component].tolist()
+        point["_u"] = u  # popped by report.pictures.error_fields: the best and worst are drawn
         red = getattr(solver, "red_history", None)
         if red:
             point["red"] = float(red[-1])
