@@ -25,13 +25,14 @@ from sim.cases.rates import cnn_cube, ebm_block, step_rate
 from sim.cases.zhang import zhang_cube_shear, zhang_cylinder
 from sim.integrators.reference import ReferenceIntegrator
 from sim.model import State
+from tissuerender.report import discretisation
 from tissuerender.report.measure import mesh_point, observed_order, pareto_front
 
 # the displacement component the thesis plots along the measurement line: u_x on the cylinder (Zhang
 # Figs. 5.5(c), 5.6(c)), u_z on the cube (Fig. 5.7(c))
 LINE_COMPONENT = {"cylinder_extension": 0, "cylinder_compression": 0, "cube_shear": 2}
 MESH_CASES = tuple(LINE_COMPONENT)
-CASES = ("msd", *MESH_CASES, "rates")
+CASES = ("msd", *MESH_CASES, "rates", discretisation.CASE)
 
 # sweep settings per level; "tiny" is the test suite's (not a CLI option)
 SWEEPS = {
@@ -61,10 +62,12 @@ SWEEPS = {
         "rates": {"steps": 5, "repeats": 1, "cnn_energy": False},
     },
 }
-QUICK_CASES = ("msd", "cylinder_extension", "cube_shear", "rates")
+QUICK_CASES = ("msd", "cylinder_extension", "cube_shear", "rates", discretisation.CASE)
 
 
 def sweep_for(case: str, level: str) -> dict:
+    if case == discretisation.CASE:
+        return discretisation.SWEEPS[level]
     return SWEEPS[level]["msd" if case == "msd" else "rates" if case == "rates" else "mesh"]
 
 
@@ -74,6 +77,8 @@ def work_units(case: str, sweep: dict) -> int:
         return 1
     if case == "rates":
         return 3 if sweep["cnn_energy"] else 2
+    if case == discretisation.CASE:
+        return discretisation.work_units(sweep)
     return 2 + sum(len(sweep[k]) for k in ("xpbd", "ebm", "explicit_dts", "cnn_dts", "chainmail_alpha"))
 
 
@@ -85,6 +90,8 @@ def run_case(case: str, sweep: dict, tick=lambda: None) -> dict:
         return result
     if case == "rates":
         return run_rates(sweep, tick)
+    if case == discretisation.CASE:
+        return discretisation.run_discretisation(sweep, tick)
     return run_mesh(case, sweep, tick)
 
 

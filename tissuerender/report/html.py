@@ -13,6 +13,8 @@ import matplotlib
 matplotlib.use("Agg")  # off-screen: no display on a render node
 import matplotlib.pyplot as plt  # noqa: E402
 
+from tissuerender.report import discretisation  # noqa: E402
+
 COLOURS = {"xpbd": "tab:blue", "ebm": "tab:orange", "explicit": "tab:red", "cnn": "tab:green",
            "cnn_chainmail": "tab:purple"}
 MARKERS = {"xpbd": "o", "ebm": "s", "explicit": "^", "cnn": "D", "cnn_chainmail": "v"}
@@ -98,6 +100,8 @@ def _table(headers: list[str], rows: list[list], cls: str = "") -> str:
 
 def _case_section(case: dict) -> str:
     name = case["case"]
+    if name == discretisation.CASE:
+        return discretisation.section_html(case)
     parts = [f'<h2 id="case-{name}">{html.escape(case["title"])}{" <em>(cached)</em>" if case["cached"] else ""}</h2>']
     if name == "rates":
         parts.append(f"<p>{html.escape(case['statistic'])}, one process, wall time.</p>")
