@@ -180,9 +180,9 @@ def section_html(case: dict) -> str:
         f"<p>The issue's figure ({html.escape(claim['source'])}): <b>{claim['verdict']}</b>"
         + (f", ours {100 * claim['ours']:.2f} %" if claim["ours"] is not None else "")
         + f" — {html.escape(claim['reason'])}.</p>",
-        _table(["tets", "level", "count", "nodes", "tip deflection [m]", "tip u_x [m]", "error", "Newton it.",
+        _table(["elements", "level", "tets", "nodes", "tip deflection [m]", "tip u_x [m]", "error", "Newton it.",
                 "wall [s]"], rows),
         f"<h3>Near-incompressible locking (nu = {lock['nu']:g})</h3>"
         f"<p>Tip deflection relative to the finest quadratic level at the same nu.</p>",
-        _table(["tets", "level", "count", "tip deflection [m]", "relative"], lock_rows),
+        _table(["elements", "level", "tets", "tip deflection [m]", "relative"], lock_rows),
     ])
