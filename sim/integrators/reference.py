@@ -23,7 +23,8 @@ one when its Newton step descends, else the PSD-projected one (per-element eigen
 | ``substeps``, ``iterations`` | 1 | – | >= 1 | ignored (set from the scene's ``[simulation]``) |
 
 ``ReferenceSceneSettings`` is the scene's ``[simulation.reference]`` table; ``ReferenceSettings`` adds
-``load_steps`` and accepts (and ignores) the scene's ``substeps`` and ``iterations``.
+``load_steps`` and accepts (and ignores) the scene's ``substeps`` and ``iterations``. Quadratic (10-node) tets:
+``sim.integrators.reference_quadratic`` (the same solver, its own element energy).
 """
 from __future__ import annotations
 
