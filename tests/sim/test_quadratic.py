@@ -10,7 +10,7 @@ from sim.integrators.reference import ReferenceIntegrator
 from sim.integrators.reference_quadratic import QuadraticReferenceIntegrator, quadratic_model
 from sim.mesh import procedural
 from sim.mesh.refine import refine, to_quadratic, unique_edges
-from sim.model import Model, PrescribedDisplacement
+from sim.model import Model, PrescribedDisplacement, State
 
 MATERIAL = {"E": 1.0e4, "nu": 0.3, "density": 1000.0, "constitutive": "neo_hookean"}
 
@@ -128,3 +128,19 @@ def test_levels_to_reach_extrapolates_from_the_observed_rate():
     assert out["how"] == "extrapolated" and out["rate"] == pytest.approx(1.0) and out["level"] == pytest.approx(5.0)
     assert out["tets"] == 60 * 8**5
     assert levels_to_reach([0.05, 0.009], [0, 1], 0.01) == {"level": 1, "tets": 480, "how": "measured", "rate": None}
+
+
+def test_quadratic_dynamic_step_moves_the_centre_of_mass_by_g_h_squared():
+    """Backward Euler on a free body from rest: internal forces cancel in the sum, so sum_a m_a (x_a - X_a) / h^2
+    is the total load; the consistent gravity load (int N_a dV) and the HRZ masses both sum to the body's, so the
+    centre of mass moves by g h^2 exactly (to the Newton tolerance) although corners and edge nodes move apart."""
+    model = quadratic_model(procedural.box((0.2, 0.1, 0.1), (2, 1, 1)), gravity=np.array([0.0, 0.0, -9.81]),
+                            **MATERIAL)
+    assert model.mass.sum() == pytest.approx(1000.0 * 0.002, rel=1e-14)
+    assert model.nodal_external_force()[:, 2].sum() == pytest.approx(-9.81 * 2.0, rel=1e-14)
+    h = 0.01
+    solver = QuadraticReferenceIntegrator(model, {"mode": "dynamic", "tol": 1e-12})
+    state = solver.step(State.at_rest(model), h)
+    shift = (model.mass[:, None] * (state.x - model.X)).sum(axis=0) / model.mass.sum()
+    assert shift == pytest.approx([0.0, 0.0, -9.81 * h * h], abs=1e-12)
+    assert np.ptp(state.x[:, 2] - model.X[:, 2]) > 1e-9  # not a rigid translation: the element deforms
