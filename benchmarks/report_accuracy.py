@@ -69,6 +69,14 @@ def main() -> None:
                 print(f"{row['run']:32s} {row['steps_per_s']:10.1f} steps/s")
                 result[f"{row['run']}_hz"] = round(row["steps_per_s"], 1)
             continue
+        if name == "cantilever":  # tissuerender/report/discretisation.py
+            for row in case["linear"] + case["quadratic"]:
+                kind = "quadratic" if row["quadratic"] else "linear"
+                print(f"cantilever {kind:9s} level {row['level']} {row['tets']:7d} tets tip {row['tip_deflection']:.5f} m "
+                      f"error {100 * row['relative_error']:.3g} %")
+                result[f"cantilever_{kind}_L{row['level']}_err"] = float(f"{row['relative_error']:.4g}")
+            result["cantilever_converged_tip_m"] = float(f"{case['converged_tip_m']:.6g}")
+            continue
         print(f"\n{case['title']} ({case['error_label']}; reference order "
               f"{', '.join(f'{o:.2f}' for o in case['convergence']['orders'])}, expected "
               f"{case['convergence']['expected_order']})")

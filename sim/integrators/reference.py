@@ -23,7 +23,8 @@ one when its Newton step descends, else the PSD-projected one (per-element eigen
 | ``substeps``, ``iterations`` | 1 | – | >= 1 | ignored (set from the scene's ``[simulation]``) |
 
 ``ReferenceSceneSettings`` is the scene's ``[simulation.reference]`` table; ``ReferenceSettings`` adds
-``load_steps`` and accepts (and ignores) the scene's ``substeps`` and ``iterations``.
+``load_steps`` and accepts (and ignores) the scene's ``substeps`` and ``iterations``. Quadratic (10-node) tets:
+``sim.integrators.reference_quadratic`` (the same solver, its own element energy).
 """
 from __future__ import annotations
 
@@ -167,6 +168,10 @@ class ReferenceIntegrator:
             K = K + sp.diags(self.mass_dof / (h * h))
         return K
 
+    def _newton_step(self, K, g):
+        """``-K^-1 g`` by a sparse direct solve (``reference_quadratic`` orders its wider element couplings apart)."""
+        return -spsolve(K.tocsc(), g)
+
     def solve(self, x0, x_tilde, h, t):
         """Newton on Phi from ``x0`` with kinematic nodes at their targets at time ``t``."""
         m = self.model
@@ -197,7 +202,7 @@ class ReferenceIntegrator:
             for project in ((True, False) if far else (False, True)):
                 K = self._hessian(x, h, project)[free][:, free]
                 K = K + sp.diags(np.full(K.shape[0], 1e-12 * max(abs(K.diagonal()).max(), 1e-300)))
-                candidate = -spsolve(K.tocsc(), g)
+                candidate = self._newton_step(K, g)
                 if np.isfinite(candidate).all() and float(g @ candidate) < 0.0:
                     dx = candidate
                     break
@@ -279,7 +284,7 @@ class ReferenceIntegrator:
             for project in ((True, False) if gnorm > 1e-3 * scale else (False, True)):
                 K = (Tt @ self._hessian(x, h, project) @ T).tocsc()
                 K = K + sp.diags(np.full(K.shape[0], 1e-12 * max(abs(K.diagonal()).max(), 1e-300)))
-                candidate = -spsolve(K.tocsc(), g)
+                candidate = self._newton_step(K, g)
                 if np.isfinite(candidate).all() and float(g @ candidate) < 0.0:
                     dy = candidate
                     break

@@ -13,6 +13,8 @@ import matplotlib
 matplotlib.use("Agg")  # off-screen: no display on a render node
 import matplotlib.pyplot as plt  # noqa: E402
 
+from tissuerender.report import discretisation  # noqa: E402
+
 COLOURS = {"xpbd": "tab:blue", "ebm": "tab:orange", "explicit": "tab:red", "cnn": "tab:green",
            "cnn_chainmail": "tab:purple"}
 MARKERS = {"xpbd": "o", "ebm": "s", "explicit": "^", "cnn": "D", "cnn_chainmail": "v"}
@@ -202,10 +204,15 @@ def scene_section(scene: dict) -> str:
                      f"{', '.join(_num(d) for d in ref['differences'])} at steps "
                      f"{', '.join(_num(h) for h in ref['levels_s'])} s ({'falls' if ref['falls'] else 'does NOT fall'}"
                      f" under refinement).</p>")
+        if "discretisation" in sim:  # the mesh's own error, apart from the solver's (scene.py)
+            disc = sim["discretisation"]
+            parts.append(f"<p><b>Discretisation error</b> (the scene's mesh against {html.escape(disc['kind'])}, "
+                         f"{disc['tets']} tets): <b>{_num(disc['rel_l2'])}</b>; {html.escape(disc['what'])}.</p>")
         parts.append(f"<p><b>Cheapest within the budget:</b> {html.escape(sim['cheapest']['text'])}.</p>")
-        parts.append(_table(["setting", "substeps", "iterations", "error (max over frames)", "wall [s] / frame",
-                             "Pareto", "failure"],
+        parts.append(_table(["setting", "substeps", "iterations", "error (max over frames)", "+ mesh (bound)",
+                             "wall [s] / frame", "Pareto", "failure"],
                             [[html.escape(p["label"]), p["substeps"], p["iterations"], _num(p["rel_l2"]),
+                              _num(p.get("rel_l2_with_mesh")),
                               _num(p["wall_s_per_frame"]), "&#9679;" if i in sim["pareto"] else "",
                               html.escape(p["diverged"] or "")] for i, p in enumerate(sim["points"])]))
     ren = scene["rendering"]
@@ -445,7 +452,8 @@ def cnn_cube_section(case: dict) -> str:
 
 
 SECTIONS = {"cnn_cube": cnn_cube_section, "indentation": indentation_section,
-            "liver_variational": variational_section, "mitsuba": mitsuba_section}
+            "liver_variational": variational_section, "mitsuba": mitsuba_section,
+            discretisation.CASE: discretisation.section_html}
 
 def render_html(report: dict) -> str:
     cases = report["cases"]

@@ -11,8 +11,10 @@ a half with ``--quick``, which also measures 4 frames, not all),
 after a convergence check at ``4h``, ``2h``, ``h``: the reference's own time-step error is about
 ``|x_2h - x_h|`` (first order), and it must fall under refinement. The error of a setting is the largest,
 over the frame times ``(k - 1) / fps`` after the first, of the relative L2 displacement error over every
-body's nodes, ``||x - x_ref|| / ||x_ref - X||``. Mesh refinement is not run: the report measures the solver and
-time-step error on the mesh the scene renders, not the discretisation error (the theses' cases do that).
+body's nodes, ``||x - x_ref|| / ||x_ref - X||``: the solver and time-step error on the mesh the scene renders.
+**Discretisation**, reported apart: the same reference on every body's mesh refined once (1 tet -> 8, the scene's
+regions re-applied to the refined nodes) at the step ``levels[refined_level]``, against the scene-mesh reference at
+that step, on the scene's nodes; each setting also gets ``rel_l2_with_mesh``, its error plus that one (a bound).
 A scene with tools is not compared: the reference integrator has no contact.
 
 **Rendering.** Frame 1 of the scene (at rest) at the scene's light samples and supersampling, and at cheaper
@@ -30,6 +32,11 @@ import time
 
 import numpy as np
 
+from sim.integrators import make_integrator
+from sim.mesh.refine import refine
+from sim.mesh.surface import boundary_surface
+from sim.model import State
+from tissuerender.bodies import build_model
 from tissuerender.errors import UserError
 from tissuerender.plan import make_plan
 from tissuerender.report.measure import pareto_front
@@ -44,14 +51,18 @@ REFERENCE_SAMPLES = 16  # the render reference's light samples per the scene's (
 
 # per level: frames simulated (None: all of the scene's), the factors applied to iterations and substeps, the
 # render's largest width (None: the scene's) and the factors applied to the light samples; the reference's step
-# is the scene's substep divided by reference_refinement
+# is the scene's substep divided by reference_refinement; the refined-mesh reference runs at the step
+# levels[refined_level] (0: 4h, 1: 2h, 2: h) and is compared with the scene-mesh reference at that same step
 SCENE_SWEEPS = {
     "full": {"frames": None, "factors": [0.25, 0.5, 1.0, 2.0, 4.0], "max_width": None,
-             "sample_factors": [0.25, 0.5, 1.0, 2.0, 4.0], "supersampling": [-1, 1], "reference_refinement": 4},
+             "sample_factors": [0.25, 0.5, 1.0, 2.0, 4.0], "supersampling": [-1, 1], "reference_refinement": 4,
+             "refined_level": 1},
     "quick": {"frames": 4, "factors": [0.5, 1.0, 2.0], "max_width": 128, "sample_factors": [0.25, 1.0, 2.0],
-              "supersampling": [1], "reference_refinement": 2},
+              "supersampling": [1], "reference_refinement": 2, "refined_level": 0},
+    # the test suite's: no refined reference (19 s on its 384-tet block; tests/test_report_discretisation.py runs
+    # it on a smaller one)
     "tiny": {"frames": 3, "factors": [0.25, 0.5, 1.0, 2.0], "max_width": 64, "sample_factors": [0.25, 1.0, 4.0],
-             "supersampling": [], "reference_refinement": 4},
+             "supersampling": [], "reference_refinement": 4, "refined_level": None},
 }
 
 
@@ -134,6 +145,41 @@ def reference_trajectory(scene, frames: int, h: float) -> tuple[list[np.ndarray]
     return xs, time.perf_counter() - start
 
 
+def refined_reference_trajectory(scene, frames: int, h: float) -> tuple[list[np.ndarray], float, int]:
+    """The reference integrator at step ``h`` on every body's mesh refined once (1 tet -> 8, ``sim.mesh.refine``),
+    its material and boundary conditions rebuilt on the refined nodes (every node in a fixed or prescribed region is
+    held, edge midpoints included); the positions of the scene-mesh nodes (the refined mesh's first ones) per frame,
+    the wall seconds, and the refined tet count."""
+    reference = scene.simulation.reference.model_copy(update={"mode": "dynamic"})
+    ref_scene = variant(scene, simulation={"integrator": "reference", "dt": h, "substeps": 1, "iterations": 1,
+                                           "reference": reference})
+    world = build_world(ref_scene, make_plan(ref_scene), StageRecorder())
+    settings = {**reference.model_dump(), "substeps": 1, "iterations": 1}
+    coarse, tets = [], 0
+    for i, body in enumerate(world.bodies):
+        fine = refine(body.mesh)
+        index = next(k for k, o in enumerate(scene.objects) if o is body.spec)
+        model = build_model(body.spec, index, fine, ref_scene, boundary_surface(fine))
+        world.integrators[i] = make_integrator("reference", model, settings)
+        world.states[i] = State.at_rest(model)
+        coarse.append(body.mesh.n_points)
+        tets += fine.n_tets
+
+    def positions():
+        return np.concatenate([s.x[:n] for s, n in zip(world.states, coarse)])
+
+    start = time.perf_counter()
+    xs = [positions()]
+    for _ in range(1, frames):
+        try:
+            advance(world, ref_scene, StageRecorder())
+        except SimulationFailed as e:
+            raise UserError(f"{scene.path}: report accuracy: the reference integrator on the refined mesh failed at "
+                            f"step {h:.4g} s: {e}") from None
+        xs.append(positions())
+    return xs, time.perf_counter() - start, tets
+
+
 def why_no_simulation(scene) -> str | None:
     plan = make_plan(scene)
     if "simulate" not in plan:
@@ -166,6 +212,22 @@ def run_simulation(scene, sweep: dict, tick=lambda: None) -> dict:
     rest = refs[-1][0]
     differences = [max(e for e in relative_errors(a, b, rest) if e is not None) for a, b in zip(refs, refs[1:])]
     reference = refs[-1]
+    # discretisation: the scene-mesh reference against the refined-mesh one at the same step (the step's error,
+    # nearly the same on both meshes, cancels), on the scene-mesh nodes
+    k = sweep["refined_level"]
+    discretisation = None
+    if k is not None:
+        refined, refined_seconds, refined_tets = refined_reference_trajectory(scene, frames, levels[k])
+        tick()
+        mesh_error = max(e for e in relative_errors(refs[k], refined, rest) if e is not None)
+        discretisation = {
+            "kind": f"the reference on the scene's mesh refined once (1 tet -> 8), same integrator and tolerance, step "
+                    f"{levels[k]:.4g} s", "step_s": levels[k], "tets": refined_tets, "wall_s": refined_seconds,
+            "rel_l2": mesh_error,
+            "what": "largest relative L2 difference over the frames, on the scene's nodes, between the reference on the "
+                    "scene's mesh and on the refined mesh at the same step: the error the mesh makes whatever the "
+                    "solver (a setting's rel_l2_with_mesh: its solver error plus this, a bound by the triangle "
+                    "inequality)"}
     trajectory(scene, 2)  # warm-up: numba compiles (or loads) the integrator's kernels outside the timings
     points = []
     for setting in simulation_settings(scene, sweep["factors"]):
@@ -177,6 +239,9 @@ def run_simulation(scene, sweep: dict, tick=lambda: None) -> dict:
                        "diverged": failure, "rel_l2": max(measured) if measured else None,
                        "rel_l2_per_frame": errors, "wall_s": float(sum(seconds)),
                        "wall_s_per_frame": float(sum(seconds) / max(len(seconds), 1))})
+        if discretisation is not None:
+            error = points[-1]["rel_l2"]
+            points[-1]["rel_l2_with_mesh"] = None if error is None else error + discretisation["rel_l2"]
         tick()
     return {"integrator": sim.integrator, "frames": frames, "fps": scene.output.fps,
             "frame_times_s": [k / scene.output.fps for k in range(frames)],
@@ -188,6 +253,7 @@ def run_simulation(scene, sweep: dict, tick=lambda: None) -> dict:
                           "what": "largest relative L2 difference over the frames between successive levels "
                                   "(4h against 2h, 2h against h)",
                           "falls": bool(differences[1] < differences[0])},
+            **({} if discretisation is None else {"discretisation": discretisation}),
             "error_key": "rel_l2", "points": points,
             "pareto": pareto_front(points, "rel_l2", "wall_s_per_frame")}
 
@@ -269,7 +335,8 @@ def part_units(scene, sweep: dict, part: str) -> int:
     """How many times a part calls its ``tick``: the progress bar's share of it."""
     if part == "rendering":
         return 1 + len(render_settings(scene, sweep))
-    return 3 + len(simulation_settings(scene, sweep["factors"])) if why_no_simulation(scene) is None else 0
+    refined = sweep["refined_level"] is not None
+    return 3 + refined + len(simulation_settings(scene, sweep["factors"])) if why_no_simulation(scene) is None else 0
 
 
 def work_units(scene, sweep: dict) -> int:
