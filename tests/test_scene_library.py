@@ -101,3 +101,49 @@ def test_simulated_bodies_rest_on_more_than_a_few_held_nodes(path):
             continue  # moved by its prescribed regions (the validation cases): held where they say
         assert held.sum() >= max(8, 0.02 * held.size), (
             f"{path.name}: {body.spec.name} holds {int(held.sum())} of {held.size} nodes")
+
+
+def test_gallbladder_is_a_pear_whose_neck_runs_under_the_liver_in_cholecystectomy():
+    """Issue 19: a gallbladder shape of its own (not a scaled kidney). Its sac is pear-shaped -- the fundus about
+    twice as wide as the neck, measured across the long axis (design: radii 0.42 and 0.2 scale) -- and rests on
+    z = 0; in cholecystectomy the fundus lies in front of the liver and the neck's end inside the liver's volume
+    (tucked under its inferior edge)."""
+    from sim.mesh import procedural
+
+    scene = tissuerender.load_scene(ROOT / "scenes" / "cholecystectomy.toml")
+    liver, gallbladder = (next(o for o in scene.objects if o.name == n) for n in ("liver", "gallbladder"))
+    assert gallbladder.shape == "gallbladder"
+    s = gallbladder.scale
+    sdf, lo, hi = procedural.gallbladder_sdf(s)
+    axis = np.array([-0.4, 0.69, 0.0]) / np.hypot(0.4, 0.69)  # fundus centre -> neck, in the xy plane
+    across = np.array([axis[1], -axis[0], 0.0])
+
+    def width(centre):  # extent of the sac along ``across`` through ``centre`` at its mid height (0.29 s)
+        t = np.linspace(-s, s, 2001)
+        inside = sdf(np.asarray(centre) + t[:, None] * across) < 0.0
+        return np.ptp(t[inside]) if inside.any() else 0.0
+
+    fundus, neck = np.array([0.23 * s, -0.42 * s, 0.29 * s]), np.array([-0.17 * s, 0.27 * s, 0.29 * s])
+    assert 0.8 * s < width(fundus) < 0.88 * s  # 2 x 0.42 s, the grid step is 0.001 s
+    # the neck's 0.4 s, widened by the smooth union with the bent neck (k = 0.1 s): measured 0.459 s
+    assert 0.4 * s < width(neck) < 0.5 * s
+    assert width(fundus) > 1.6 * width(neck)
+    g = np.stack(np.meshgrid(*[np.linspace(a - 0.05 * s, b, 60) for a, b in zip(lo, hi)], indexing="ij"), -1)
+    inside = g.reshape(-1, 3)[sdf(g.reshape(-1, 3)) < 0.0]
+    assert inside[:, 2].min() >= 0.0
+    liver_sdf = procedural.liver_sdf(liver.scale)[0]
+    at = np.asarray(gallbladder.position)
+    neck_end = at + np.array([-0.47 * s, 0.52 * s, 0.29 * s + 0.75 * 0.15 * s])
+    fundus_tip = at + fundus - 0.42 * s * axis
+    assert liver_sdf((neck_end - np.asarray(liver.position))[None])[0] < 0.0
+    assert liver_sdf((fundus_tip - np.asarray(liver.position))[None])[0] > 0.0
+
+
+@pytest.mark.parametrize("name", ["liver_probe", "cholecystectomy"])
+def test_surgical_scenes_use_real_instruments(name):
+    """Issue 19: the instruments are a grasper and an L-hook (steel, shaft and jaws or hook), not capsule
+    stand-ins; cholecystectomy has one of each."""
+    kinds = [t.kind for t in tissuerender.load_scene(ROOT / "scenes" / f"{name}.toml").tools]
+    assert kinds and set(kinds) <= {"grasper", "l_hook"}
+    if name == "cholecystectomy":
+        assert sorted(kinds) == ["grasper", "l_hook"]

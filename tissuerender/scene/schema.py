@@ -151,7 +151,7 @@ class ObjectSpec(Strict):
         "grid cell [m] of a procedural tet mesh (default min(size)/4, organs scale/6) or of the voxelised surface "
         "of a mesh body (default 1/8 of its smallest extent); a body may have at most 400,000 tets"))
     scale: Annotated[float, Field(gt=0.0, le=1e3)] | None = Field(None, description=(
-        "size [m] of an organ shape (liver 0.15, kidney 0.11 by default); for a mesh file (body or static surface), "
+        "size [m] of an organ shape (liver 0.15, kidney 0.11, gallbladder 0.05 by default); for a mesh file (body or static surface), "
         "a uniform scale of the file's coordinates, applied before position"))
     mesh: str | None = Field(None, description=(
         "path relative to the scene: a body's tet mesh (.msh gmsh 1, 2.2 or 4, .vtu, .vtk unstructured grid, .mesh) "
