@@ -147,3 +147,75 @@ def test_surgical_scenes_use_real_instruments(name):
     assert kinds and set(kinds) <= {"grasper", "l_hook"}
     if name == "cholecystectomy":
         assert sorted(kinds) == ["grasper", "l_hook"]
+
+
+def test_colormap_albedo_puts_the_range_ends_on_the_colormaps_ends():
+    """The field colour map's albedo is the colormap's sRGB colour decoded to linear (IEC 61966-2-1), the range's
+    ends on the colormap's ends and values beyond them clamped; the inverse recovers u to the colormap's own table
+    step (matplotlib's viridis is a 256-entry lookup table: 1/255)."""
+    import matplotlib
+
+    from tissuerender.renderer.fieldmap import colormap_albedo, colormap_parameter, srgb_to_linear
+
+    ends = srgb_to_linear(matplotlib.colormaps["viridis"]([0.0, 1.0])[:, :3])
+    albedo = colormap_albedo([-1.0, 0.0, 0.2, 0.4, 9.0], 0.0, 0.4)
+    np.testing.assert_allclose(albedo[[0, 1]], ends[[0, 0]], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(albedo[[3, 4]], ends[[1, 1]], rtol=0, atol=1e-15)
+    assert srgb_to_linear(0.5) == pytest.approx(0.21404114, abs=1e-8)  # ((0.5 + 0.055) / 1.055) ** 2.4
+    np.testing.assert_allclose(colormap_parameter(albedo), [0.0, 0.0, 0.5, 1.0, 1.0], atol=1.0 / 255)
+
+
+def test_beam_colour_map_runs_from_the_held_end_to_the_tip(tmp_path):
+    """Issue 19: the beam scene's surface colours are monotone in its field: binned along the beam, the colormap
+    position of the shaded surface rises from the held end (its low end) to the tip (its high end, with the range
+    left to each frame's maximum, which a cantilever reaches at its tip). Read from the G-buffer's albedo at 64x48,
+    frame 4 (t = 0.125 s, tip displaced about 0.1 m); the inverse colormap resolves u to 1/255 (its table)."""
+    import tomllib
+
+    import tomli_w
+
+    from tissuerender.checks import check_scene
+    from tissuerender.pipeline import advance
+    from tissuerender.render_inputs import camera_for, render_objects
+    from tissuerender.renderer.fieldmap import colormap_parameter
+    from tissuerender.renderer.gbuffer import material_optics, merge_objects, rasterise, shading_points
+    from tissuerender.stages import StageRecorder
+
+    data = tomllib.loads((ROOT / "scenes" / "beam.toml").read_text())
+    del data["objects"][0]["field_colours"]["range"]
+    path = tmp_path / "beam.toml"
+    path.write_text(tomli_w.dumps(data))
+    scene = tissuerender.load_scene(path)
+    checked, recorder = check_scene(scene), StageRecorder()
+    for _ in range(3):
+        advance(checked.world, scene, recorder)
+    # the G-buffer as the shading stages receive it (the shading itself does not change the albedo)
+    objects, _ = render_objects(checked.world, scene, 3 / scene.output.fps, checked.plan, recorder)
+    camera = camera_for(scene, 64, 48)
+    surface, raster = rasterise(merge_objects(objects), camera, 1, False, 0)
+    gbuffer: dict = {}
+    shading_points(surface, raster, camera, material_optics(objects), False, gbuffer)
+    x, u = gbuffer["position"][:, 0], colormap_parameter(gbuffer["albedo"])
+    bins = np.linspace(0.0, 2.0, 11)
+    mean_u = np.array([u[(x >= a) & (x < b)].mean() for a, b in zip(bins[:-1], bins[1:])])
+    assert np.all(np.diff(mean_u) > 0.0), mean_u
+    assert u[x < 0.1].max() < 0.02  # the held end: at rest
+    assert u[x > 1.9].max() > 0.98  # the tip: the frame's largest displacement
+
+
+def test_field_colours_are_rejected_on_a_static_surface_and_recorded_in_the_manifest(scene_dict, write_scene):
+    """A static surface never moves, so a field colour map on it has no effect: refused, naming the key; on a body
+    the colour bar (field, unit, colormap, range) is what the render's manifest records."""
+    from tissuerender.errors import SceneError
+    from tissuerender.field_colours import legends
+
+    colours = {"field": "displacement", "range": [0.0, 0.3]}
+    surface = {"name": "wall", "kind": "surface", "mesh": str(ROOT / "scenes" / "assets" / "backdrop.ply"),
+               "material": "peritoneum", "field_colours": colours}
+    with pytest.raises(SceneError, match=r"objects\[1\]\.field_colours"):
+        tissuerender.load_scene(write_scene({**scene_dict, "objects": scene_dict["objects"] + [surface]}))
+    scene_dict["objects"][0]["field_colours"] = colours
+    scene = tissuerender.load_scene(write_scene(scene_dict))
+    name = scene.objects[0].name
+    assert legends(scene) == {"field_colours": {name: {"field": "displacement", "unit": "m", "colormap": "viridis",
+                                                       "range": [0.0, 0.3]}}}

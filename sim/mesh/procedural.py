@@ -295,8 +295,9 @@ def gallbladder_sdf(scale: float):
     """A gallbladder in the liver's frame (front -y, right lobe +x, +z up) resting on z = 0: a pear-shaped sac whose
     round fundus (radius 0.42 scale) points forward and to the right, past the liver's inferior edge, tapering
     through the body to the neck (radius 0.2 scale) at the back left, which bends up and further left towards the
-    porta hepatis (Hartmann's pouch, radius 0.12 scale), the long axis 30 degrees off y as in the fossa; flattened to 3/4 of its width in height, as a sac lying in the liver's fossa is. About
-    ``1.7 scale`` long; every curvature radius is at least 0.1 scale (see ``organ_render_pitch``)."""
+    porta hepatis (Hartmann's pouch, radius 0.12 scale), the long axis 30 degrees off y as in the fossa; flattened
+    to 3/4 of its width in height, as a sac lying in the liver's fossa is. About ``1.7 scale`` long; every curvature
+    radius is at least 0.1 scale (see ``organ_render_pitch``)."""
     s = scale
     zc, squash = 0.29 * s, 0.75
 

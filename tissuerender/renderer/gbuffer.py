@@ -14,14 +14,15 @@ from materials.textures import sample_bilinear
 from sim.mesh.surface import box_uv, vertex_normals
 from tissuerender.renderer.bsdf.mucosa import layer_arrays, layer_channels
 from tissuerender.renderer.camera import Camera, camera_basis
+from tissuerender.renderer.fieldmap import apply_vertex_albedo
 from tissuerender.renderer.raster import interpolate_gbuffer, material_lookup, rasterize_objects
 
 
 @dataclass
 class RenderSurface:
     """Every object's triangles in one mesh: vertex ``points`` (n, 3), ``normals`` (n, 3), ``attributes``
-    (n, 5: velocity and UV, linear over a triangle), ``triangles`` (t, 3) and each triangle's material
-    index ``tri_material`` (t,) into the frame's material list."""
+    (n, 8: velocity, UV and the field colour map's vertex albedo, NaN without one; linear over a triangle),
+    ``triangles`` (t, 3) and each triangle's material index ``tri_material`` (t,) into the frame's material list."""
 
     points: np.ndarray
     triangles: np.ndarray
@@ -72,7 +73,7 @@ def material_optics(objects) -> list:
 
 def merge_objects(objects) -> RenderSurface:
     """The objects' meshes in one :class:`RenderSurface` (vertex normals computed where an object has none)."""
-    pts, tris, nrm, vel, tri_mat, uvs = [], [], [], [], [], []
+    pts, tris, nrm, vel, tri_mat, uvs, colours = [], [], [], [], [], [], []
     offset = 0
     for k, obj in enumerate(objects):
         p = np.asarray(obj.points, float)
@@ -87,12 +88,14 @@ def merge_objects(objects) -> RenderSurface:
         # without UVs, the box projection in metres of procedural bodies (a texture keeps its physical size)
         uvs.append(box_uv(p, np.asarray(n, float)) if obj.uv is None else np.asarray(obj.uv, float).reshape(-1, 2))
         tri_mat.append(np.full(t.shape[0], k, np.int64))
+        vertex_albedo = getattr(obj, "vertex_albedo", None)
+        colours.append(np.full_like(p, np.nan) if vertex_albedo is None else np.asarray(vertex_albedo, float))
         offset += p.shape[0]
     if not pts:
         z = np.zeros((0, 3))
-        return RenderSurface(z, np.zeros((0, 3), np.int64), z, np.zeros((0, 5)), np.zeros(0, np.int64))
-    # velocity and UV travel together as one linearly interpolated vertex attribute (n, 5)
-    attributes = np.concatenate([np.concatenate(vel), np.concatenate(uvs)], axis=1)
+        return RenderSurface(z, np.zeros((0, 3), np.int64), z, np.zeros((0, 8)), np.zeros(0, np.int64))
+    # velocity, UV and vertex albedo travel together as one linearly interpolated vertex attribute (n, 8)
+    attributes = np.concatenate([np.concatenate(vel), np.concatenate(uvs), np.concatenate(colours)], axis=1)
     return RenderSurface(np.concatenate(pts), np.concatenate(tris), np.concatenate(nrm), attributes,
                          np.concatenate(tri_mat))
 
@@ -204,10 +207,13 @@ def shading_points(surface: RenderSurface, raster: Raster, camera: Camera, optic
     if motion:
         gbuffer["velocity"] = np.einsum("kc,kcd->kd", b, V[corner][:, :, :3])
     if textured:
-        uv = np.einsum("kc,kcd->kd", b, V[corner][:, :, 3:])
+        uv = np.einsum("kc,kcd->kd", b, V[corner][:, :, 3:5])
         gbuffer["uv"] = uv
         albedo, n, alpha, rough_factor = textured_surface(optics, mat, uv, albedo, n, alpha)
         gbuffer.update(albedo=albedo, normal=n, roughness=alpha)
+    if np.isfinite(V[:, 5:8]).any():  # a field colour map on some object (renderer.fieldmap)
+        albedo = apply_vertex_albedo(albedo, V[:, 5:8], T, tri, raster.bary[jj, ii])
+        gbuffer["albedo"] = albedo
     layers = layer_arrays(optics, mat, rough_factor)
     gbuffer["specular"] = f0
     if layers is not None:

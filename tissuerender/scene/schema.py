@@ -24,6 +24,7 @@ from tissuerender.scene.camera_schema import CameraKeyframe, CameraLens, check_p
 from tissuerender.scene.bc_schema import HeldComponents
 from tissuerender.scene.interaction_schema import FloorSpec, GraspSpec
 from tissuerender.scene.optics_schema import LayerOverride
+from tissuerender.scene.field_schema import FieldColours
 from tissuerender.scene.shapes import SHAPES
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -172,6 +173,8 @@ class ObjectSpec(Strict):
     floor: FloorSpec | None = Field(None, description="body: a static plane it rests on, with friction (xpbd; table below)")
     paint: Annotated[list[PaintStroke], Field(max_length=1000)] = Field([], description=(
         "body: heterogeneous stiffness, poly6 strokes (Qian 4.26-4.28; table below)"))
+    field_colours: FieldColours | None = Field(None, description=(
+        "body: draw its surface coloured by a field (displacement) through a colormap (table below)"))
 
     @model_validator(mode="after")
     def _geometry_source(self):
