@@ -50,15 +50,17 @@ test: setup
 bench: setup
 	for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b --quick || exit 1; done
 
-# The README gallery: frame 1 of every scene in scenes/ at 320x240 into docs/gallery/NAME.png (committed).
+# The README gallery: frame 1 of every scene in scenes/ at 320x240 into docs/gallery/NAME.png (committed); the
+# scenes drawing a field colour map (the validation cases) show their last frame, where the field has grown.
 GALLERY_SIZE ?= 320,240
 gallery: setup
 	mkdir -p docs/gallery
 	for s in scenes/*.toml; do \
 	  n=$$(basename $$s .toml); echo "== $$n"; \
 	  $(PY) -c 'import pathlib, sys, tissuerender; from tissuerender.files import write_png; \
-	    w, h = map(int, sys.argv[3].split(",")); \
-	    write_png(pathlib.Path(sys.argv[2]), tissuerender.render_image(tissuerender.load_scene(sys.argv[1]), resolution=(w, h)))' \
+	    w, h = map(int, sys.argv[3].split(",")); sc = tissuerender.load_scene(sys.argv[1]); \
+	    frame = sc.output.frames if any(o.field_colours for o in sc.objects) else 1; \
+	    write_png(pathlib.Path(sys.argv[2]), tissuerender.render_image(sc, frame=frame, resolution=(w, h)))' \
 	    $$s docs/gallery/$$n.png $(GALLERY_SIZE) || exit 1; \
 	done
 

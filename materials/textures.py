@@ -160,3 +160,33 @@ def sample_bilinear(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     top = texture[y0, x0] * (1 - tx) + texture[y0, x1] * tx
     bottom = texture[y1, x0] * (1 - tx) + texture[y1, x1] * tx
     return top * (1 - ty) + bottom * ty
+
+
+def mip_chain(texture: np.ndarray) -> list[np.ndarray]:
+    """The texture's mip-map pyramid (Williams 1983): level 0 is ``texture`` (H, W, C), each next level the 2 x 2
+    box average of the one before, while both sides are even (a 256-texel bake has 9 levels, down to 1 x 1, the
+    texture's mean)."""
+    chain = [np.asarray(texture, dtype=np.float64)]
+    while chain[-1].shape[0] % 2 == 0 and chain[-1].shape[1] % 2 == 0 and min(chain[-1].shape[:2]) > 1:
+        t = chain[-1]
+        chain.append(0.25 * (t[0::2, 0::2] + t[1::2, 0::2] + t[0::2, 1::2] + t[1::2, 1::2]))
+    return chain
+
+
+def sample_mipmapped(chain: list[np.ndarray], uv: np.ndarray, texels: np.ndarray) -> np.ndarray:
+    """Trilinear lookup (wrapping) at (k, 2) UVs of a :func:`mip_chain` seen with a footprint of ``texels`` (k,)
+    level-0 texels per sample: bilinear in the two levels around ``lod = log2(texels)`` (clamped to the chain),
+    blended linearly in lod. A footprint of one texel or less is the plain bilinear lookup of level 0; a sample
+    covering the whole tile reads the texture's mean, so a pattern finer than the pixels averages out instead
+    of aliasing into speckle."""
+    lod = np.clip(np.log2(np.maximum(np.asarray(texels, dtype=np.float64), 1.0)), 0.0, len(chain) - 1.0)
+    low = np.minimum(np.floor(lod).astype(int), len(chain) - 1)
+    blend_up = (lod - low)[:, None]
+    out = np.empty((uv.shape[0], chain[0].shape[2]))
+    for level in np.unique(low):
+        sel = np.flatnonzero(low == level)
+        value = sample_bilinear(chain[level], uv[sel])
+        if level + 1 < len(chain) and blend_up[sel].any():
+            value = value * (1.0 - blend_up[sel]) + sample_bilinear(chain[level + 1], uv[sel]) * blend_up[sel]
+        out[sel] = value
+    return out

@@ -33,9 +33,13 @@ SHIPPED_PLANS = {
     # integrator "none", one slab; sss, no shadows; hd_scope and depth_of_field
     "mucosa_closeup": ["mesh", "raster", "bvh", "thickness", "shade", "postfx.depth_of_field",
                        "postfx.chromatic_aberration", "postfx.tonemap", "postfx.laparoscope_mask", "write_png"],
-    # prescribed compression, no gravity, no tools; shadows; png and vtu
-    "zhang_cylinder": ["mesh", "simulate", "embed", "write_vtu", "raster", "bvh", "shadow_rays", "shade",
-                       "postfx.tonemap", "write_png"],
+    # prescribed compression, no gravity, no tools; no shadows (a colour map); png and vtu
+    "zhang_cylinder": ["mesh", "simulate", "embed", "write_vtu", "raster", "shade", "postfx.tonemap", "write_png"],
+    # gravity on a held beam; no shadows, no sss
+    "beam": ["mesh", "simulate", "embed", "raster", "shade", "postfx.tonemap", "write_png"],
+    # prescribed shear, no gravity; shadows
+    "cube_shear": ["mesh", "simulate", "embed", "raster", "bvh", "shadow_rays", "shade", "postfx.tonemap",
+                   "write_png"],
 }
 
 

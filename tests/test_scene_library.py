@@ -101,3 +101,121 @@ def test_simulated_bodies_rest_on_more_than_a_few_held_nodes(path):
             continue  # moved by its prescribed regions (the validation cases): held where they say
         assert held.sum() >= max(8, 0.02 * held.size), (
             f"{path.name}: {body.spec.name} holds {int(held.sum())} of {held.size} nodes")
+
+
+def test_gallbladder_is_a_pear_whose_neck_runs_under_the_liver_in_cholecystectomy():
+    """Issue 19: a gallbladder shape of its own (not a scaled kidney). Its sac is pear-shaped -- the fundus about
+    twice as wide as the neck, measured across the long axis (design: radii 0.42 and 0.2 scale) -- and rests on
+    z = 0; in cholecystectomy the fundus lies in front of the liver and the neck's end inside the liver's volume
+    (tucked under its inferior edge)."""
+    from sim.mesh import procedural
+
+    scene = tissuerender.load_scene(ROOT / "scenes" / "cholecystectomy.toml")
+    liver, gallbladder = (next(o for o in scene.objects if o.name == n) for n in ("liver", "gallbladder"))
+    assert gallbladder.shape == "gallbladder"
+    s = gallbladder.scale
+    sdf, lo, hi = procedural.gallbladder_sdf(s)
+    axis = np.array([-0.4, 0.69, 0.0]) / np.hypot(0.4, 0.69)  # fundus centre -> neck, in the xy plane
+    across = np.array([axis[1], -axis[0], 0.0])
+
+    def width(centre):  # extent of the sac along ``across`` through ``centre`` at its mid height (0.29 s)
+        t = np.linspace(-s, s, 2001)
+        inside = sdf(np.asarray(centre) + t[:, None] * across) < 0.0
+        return np.ptp(t[inside]) if inside.any() else 0.0
+
+    fundus, neck = np.array([0.23 * s, -0.42 * s, 0.29 * s]), np.array([-0.17 * s, 0.27 * s, 0.29 * s])
+    assert 0.8 * s < width(fundus) < 0.88 * s  # 2 x 0.42 s, the grid step is 0.001 s
+    # the neck's 0.4 s, widened by the smooth union with the bent neck (k = 0.1 s): measured 0.459 s
+    assert 0.4 * s < width(neck) < 0.5 * s
+    assert width(fundus) > 1.6 * width(neck)
+    g = np.stack(np.meshgrid(*[np.linspace(a - 0.05 * s, b, 60) for a, b in zip(lo, hi)], indexing="ij"), -1)
+    inside = g.reshape(-1, 3)[sdf(g.reshape(-1, 3)) < 0.0]
+    assert inside[:, 2].min() >= 0.0
+    liver_sdf = procedural.liver_sdf(liver.scale)[0]
+    at = np.asarray(gallbladder.position)
+    neck_end = at + np.array([-0.47 * s, 0.52 * s, 0.29 * s + 0.75 * 0.15 * s])
+    fundus_tip = at + fundus - 0.42 * s * axis
+    assert liver_sdf((neck_end - np.asarray(liver.position))[None])[0] < 0.0
+    assert liver_sdf((fundus_tip - np.asarray(liver.position))[None])[0] > 0.0
+
+
+@pytest.mark.parametrize("name", ["liver_probe", "cholecystectomy"])
+def test_surgical_scenes_use_real_instruments(name):
+    """Issue 19: the instruments are a grasper and an L-hook (steel, shaft and jaws or hook), not capsule
+    stand-ins; cholecystectomy has one of each."""
+    kinds = [t.kind for t in tissuerender.load_scene(ROOT / "scenes" / f"{name}.toml").tools]
+    assert kinds and set(kinds) <= {"grasper", "l_hook"}
+    if name == "cholecystectomy":
+        assert sorted(kinds) == ["grasper", "l_hook"]
+
+
+def test_colormap_albedo_puts_the_range_ends_on_the_colormaps_ends():
+    """The field colour map's albedo is the colormap's sRGB colour decoded to linear (IEC 61966-2-1), the range's
+    ends on the colormap's ends and values beyond them clamped; the inverse recovers u to the colormap's own table
+    step (matplotlib's viridis is a 256-entry lookup table: 1/255)."""
+    import matplotlib
+
+    from tissuerender.renderer.fieldmap import colormap_albedo, colormap_parameter, srgb_to_linear
+
+    ends = srgb_to_linear(matplotlib.colormaps["viridis"]([0.0, 1.0])[:, :3])
+    albedo = colormap_albedo([-1.0, 0.0, 0.2, 0.4, 9.0], 0.0, 0.4)
+    np.testing.assert_allclose(albedo[[0, 1]], ends[[0, 0]], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(albedo[[3, 4]], ends[[1, 1]], rtol=0, atol=1e-15)
+    assert srgb_to_linear(0.5) == pytest.approx(0.21404114, abs=1e-8)  # ((0.5 + 0.055) / 1.055) ** 2.4
+    np.testing.assert_allclose(colormap_parameter(albedo), [0.0, 0.0, 0.5, 1.0, 1.0], atol=1.0 / 255)
+
+
+def test_beam_colour_map_runs_from_the_held_end_to_the_tip(tmp_path):
+    """Issue 19: the beam scene's surface colours are monotone in its field: binned along the beam, the colormap
+    position of the shaded surface rises from the held end (its low end) to the tip (its high end, with the range
+    left to each frame's maximum, which a cantilever reaches at its tip). Read from the G-buffer's albedo at 64x48,
+    frame 4 (t = 0.125 s, tip displaced about 0.1 m); the inverse colormap resolves u to 1/255 (its table)."""
+    import tomllib
+
+    import tomli_w
+
+    from tissuerender.checks import check_scene
+    from tissuerender.pipeline import advance
+    from tissuerender.render_inputs import camera_for, render_objects
+    from tissuerender.renderer.fieldmap import colormap_parameter
+    from tissuerender.renderer.gbuffer import material_optics, merge_objects, rasterise, shading_points
+    from tissuerender.stages import StageRecorder
+
+    data = tomllib.loads((ROOT / "scenes" / "beam.toml").read_text())
+    del data["objects"][0]["field_colours"]["range"]
+    path = tmp_path / "beam.toml"
+    path.write_text(tomli_w.dumps(data))
+    scene = tissuerender.load_scene(path)
+    checked, recorder = check_scene(scene), StageRecorder()
+    for _ in range(3):
+        advance(checked.world, scene, recorder)
+    # the G-buffer as the shading stages receive it (the shading itself does not change the albedo)
+    objects, _ = render_objects(checked.world, scene, 3 / scene.output.fps, checked.plan, recorder)
+    camera = camera_for(scene, 64, 48)
+    surface, raster = rasterise(merge_objects(objects), camera, 1, False, 0)
+    gbuffer: dict = {}
+    shading_points(surface, raster, camera, material_optics(objects), False, gbuffer)
+    x, u = gbuffer["position"][:, 0], colormap_parameter(gbuffer["albedo"])
+    bins = np.linspace(0.0, 2.0, 11)
+    mean_u = np.array([u[(x >= a) & (x < b)].mean() for a, b in zip(bins[:-1], bins[1:])])
+    assert np.all(np.diff(mean_u) > 0.0), mean_u
+    assert u[x < 0.1].max() < 0.02  # the held end: at rest
+    assert u[x > 1.9].max() > 0.98  # the tip: the frame's largest displacement
+
+
+def test_field_colours_are_rejected_on_a_static_surface_and_recorded_in_the_manifest(scene_dict, write_scene):
+    """A static surface never moves, so a field colour map on it has no effect: refused, naming the key; on a body
+    the colour bar (field, unit, colormap, range) is what the render's manifest records."""
+    from tissuerender.errors import SceneError
+    from tissuerender.field_colours import legends
+
+    colours = {"field": "displacement", "range": [0.0, 0.3]}
+    surface = {"name": "wall", "kind": "surface", "mesh": str(ROOT / "scenes" / "assets" / "backdrop.ply"),
+               "material": "peritoneum", "field_colours": colours}
+    with pytest.raises(SceneError, match=r"objects\[1\]\.field_colours"):
+        tissuerender.load_scene(write_scene({**scene_dict, "objects": scene_dict["objects"] + [surface]}))
+    scene_dict["objects"][0]["field_colours"] = colours
+    scene = tissuerender.load_scene(write_scene(scene_dict))
+    name = scene.objects[0].name
+    assert legends(scene) == {"field_colours": {name: {"field": "displacement", "unit": "m", "colormap": "viridis",
+                                                       "range": [0.0, 0.3]}}}

@@ -98,3 +98,48 @@ def test_bake_layer_gives_consistent_maps():
     dark = bake.vessels > 0.5
     plain = bake_layer(64, palette, roughness=0.3, seed=5, vessel_density=0.0)
     assert (bake.albedo[dark] < plain.albedo[dark] - 1e-6).all()
+
+
+def _checker(size: int = 64) -> np.ndarray:
+    """A one-texel RGB checker of 0 and 1: mean 0.5, the highest frequency a texture can hold."""
+    j, i = np.mgrid[0:size, 0:size]
+    return np.repeat(((i + j) % 2).astype(np.float64)[..., None], 3, axis=2)
+
+
+def test_mip_mapped_checker_seen_small_averages_to_its_mean_where_bilinear_speckles():
+    """Issue 19: a 160x120 render must not speckle. A one-texel checker (mean 0.5) on a plane 1 m away, tiled every
+    1 cm, seen by a 64-pixel-wide 60-degree camera: one sample covers 2 tan(30 deg) / 64 m = 1.8 cm = 115 texels,
+    so the mip-mapped lookup reads the 1 x 1 level, the mean, exactly (every level from 1 on is 0.5: sums of
+    0.25-weighted 0s and 1s are exact in binary); the plain bilinear lookup at the same points spreads over
+    [0, 1]: between two 0s and two 1s it is 1/2 - 2 (x - 1/2)(y - 1/2), of standard deviation 4 (1/12) / 2 = 1/6
+    at uniform points."""
+    from types import SimpleNamespace
+
+    from materials.textures import mip_chain, sample_mipmapped
+    from tissuerender.renderer.camera import Camera
+    from tissuerender.renderer.gbuffer import sample_footprint, textured_surface
+
+    chain = mip_chain(_checker())
+    assert len(chain) == 7 and chain[-1].shape == (1, 1, 3) and np.all(chain[1] == 0.5)
+    rng = np.random.default_rng(3)
+    k = 500
+    xy = rng.uniform(-0.3, 0.3, (k, 2))
+    position = np.column_stack([xy[:, 0], np.ones(k), xy[:, 1]])  # the plane y = 1, facing the camera
+    normal, wo = np.tile([0.0, -1.0, 0.0], (k, 1)), -position / np.linalg.norm(position, axis=1, keepdims=True)
+    camera = Camera(position=(0.0, 0.0, 0.0), look_at=(0.0, 1.0, 0.0), up=(0.0, 0.0, 1.0), fov_deg=60.0, near=0.01,
+                    far=10.0, width=64, height=48)
+    footprint = sample_footprint(position, normal, wo, camera, 64)
+    assert np.all(footprint >= 2.0 * np.tan(np.radians(30.0)) / 64)  # at least the on-axis sample's 1.8 cm
+    layers = SimpleNamespace(texture_seed=1, texture_period=0.01, baked_albedo=_checker,
+                             baked_roughness_factor=lambda: np.ones((64, 64)),
+                             baked_normal=lambda: np.tile([0.0, 0.0, 1.0], (64, 64, 1)))
+    optics = [SimpleNamespace(layers=layers)]
+    args = (optics, np.zeros(k, np.int64), xy, np.zeros((k, 3)), normal, np.full(k, 0.3))
+    mipmapped = textured_surface(*args, footprint=footprint)[0]
+    np.testing.assert_allclose(mipmapped, 0.5, rtol=0, atol=1e-15)
+    speckle = textured_surface(*args)[0]  # without a footprint: bilinear level 0
+    assert speckle.std() > 0.15 and np.ptp(speckle) > 0.9
+    # seen from close (a quarter texel per sample) the lookup is the plain bilinear one
+    st = rng.uniform(0.0, 1.0, (k, 2))
+    np.testing.assert_allclose(sample_mipmapped(chain, st, np.full(k, 0.25)),
+                               sample_mipmapped(chain[:1], st, np.ones(k)), rtol=0, atol=0)

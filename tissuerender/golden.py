@@ -6,6 +6,7 @@
     name = "default"                  # file stem of the stored image(s)
     scene = "../../scenes/default.toml"   # relative to DIR
     resolution = [160, 120]
+    frame = 1                         # the frame rendered (the scene simulated up to it; default 1)
     mode = "exact"                    # or "statistical"
     flip_max = 0.02                   # exact: mean FLIP (NVIDIA FLIP, LDR) must not exceed this
     psnr_min = 35.0                   # exact: PSNR [dB] must reach this
@@ -56,6 +57,7 @@ class GoldenImage(BaseModel):
     name: Annotated[str, Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")]
     scene: str
     resolution: Annotated[list[Annotated[int, Field(ge=8, le=4096)]], Field(min_length=2, max_length=2)] = [160, 120]
+    frame: Annotated[int, Field(ge=1, le=100000)] = 1  # the validation cases show their fields at a later frame
     mode: Literal["exact", "statistical"] = "exact"
     flip_max: Annotated[float, Field(ge=0.0, le=1.0)] = 0.02
     psnr_min: Annotated[float, Field(ge=0.0, le=200.0)] = 35.0
@@ -101,7 +103,7 @@ def load_manifest(directory) -> tuple[Path, GoldenManifest]:
 
 def _render(entry: GoldenImage, directory: Path, seed: int | None = None) -> np.ndarray:
     scene = load_scene((directory / entry.scene).resolve())
-    return render_image(scene, seed=seed, resolution=tuple(entry.resolution))
+    return render_image(scene, seed=seed, frame=entry.frame, resolution=tuple(entry.resolution))
 
 
 def _to_float(img_u8: np.ndarray) -> np.ndarray:

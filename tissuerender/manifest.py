@@ -11,6 +11,7 @@ from importlib import metadata
 from pathlib import Path
 
 from tissuerender.errors import UserError
+from tissuerender.field_colours import legends
 from tissuerender.plan import Plan
 from tissuerender.scene import Scene
 from tissuerender.stages import StageRecorder
@@ -52,6 +53,7 @@ def manifest(scene: Scene, plan: Plan, recorder: StageRecorder, formats: list[st
         "frames_done": len(done),
         "frames_done_ranges": frame_ranges(done),
         "wall_seconds": round(wall, 3),
+        **legends(scene),  # the field colour maps' colour bars
         **extra,
     }
 

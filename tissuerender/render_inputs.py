@@ -11,6 +11,7 @@ import materials
 from materials.optics import with_overrides
 from sim.mesh.surface import vertex_normals
 from tissuerender import instruments
+from tissuerender.field_colours import vertex_albedo
 from tissuerender.errors import SceneError
 from tissuerender.groundtruth.lens import FisheyeLens, fisheye_lens
 from tissuerender.plan import Plan
@@ -169,9 +170,12 @@ def render_objects(world: World, scene: Scene, t: float, plan: Plan, recorder: S
             prev = prev if prev.shape == pts.shape else pts  # a cut changed the surface (tissuerender.world)
             velocity = (pts - prev) * scene.output.fps
         positions[body.spec.name] = pts
+        colours = body.spec.field_colours
         objects.append(RenderObject(points=pts, triangles=body.surface.triangles, normals=normals,
                                     uv=body.surface.uv, material=body.spec.material, object_id=oid,
-                                    velocity=velocity, optics=optics_for(body.spec), name=body.spec.name))
+                                    velocity=velocity, optics=optics_for(body.spec), name=body.spec.name,
+                                    vertex_albedo=None if colours is None else
+                                    vertex_albedo(colours, body.surface.points, pts)))
         oid += 1
     for s in world.surfaces:
         vel = np.zeros_like(s.surface.points) if "velocity_channel" in plan else None

@@ -271,6 +271,47 @@ def kidney_sdf(scale: float):
     return sdf, (-0.5 * s, -0.3 * s, 0.0), (0.5 * s, 0.3 * s, 0.44 * s)
 
 
+def _round_cone(p, a, b, ra, rb):
+    """Exact SDF of the round cone between a sphere of radius ``ra`` at ``a`` and one of ``rb`` at ``b``, with the
+    cone tangent to both (Quilez, "distance functions": sdRoundCone)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    ba = b - a
+    l2 = float(ba @ ba)
+    rr = ra - rb
+    a2 = l2 - rr * rr
+    pa = p - a
+    y = pa @ ba
+    z = y - l2
+    x2 = np.einsum("ij,ij->i", pa * l2 - y[:, None] * ba, pa * l2 - y[:, None] * ba)
+    y2, z2 = y * y * l2, z * z * l2
+    k = np.sign(rr) * rr * rr * x2
+    side = (np.sqrt(x2 * a2 / l2) + y * rr) / l2 - ra  # distance to the cone's side
+    at_b = np.sqrt(x2 + z2) / l2 - rb
+    at_a = np.sqrt(x2 + y2) / l2 - ra
+    return np.where(np.sign(z) * a2 * z2 > k, at_b, np.where(np.sign(y) * a2 * y2 < k, at_a, side))
+
+
+def gallbladder_sdf(scale: float):
+    """A gallbladder in the liver's frame (front -y, right lobe +x, +z up) resting on z = 0: a pear-shaped sac whose
+    round fundus (radius 0.42 scale) points forward and to the right, past the liver's inferior edge, tapering
+    through the body to the neck (radius 0.2 scale) at the back left, which bends up and further left towards the
+    porta hepatis (Hartmann's pouch, radius 0.12 scale), the long axis 30 degrees off y as in the fossa; flattened
+    to 3/4 of its width in height, as a sac lying in the liver's fossa is. About ``1.7 scale`` long; every curvature
+    radius is at least 0.1 scale (see ``organ_render_pitch``)."""
+    s = scale
+    zc, squash = 0.29 * s, 0.75
+
+    def sdf(p):
+        q = p.copy()
+        q[:, 2] = zc + (p[:, 2] - zc) / squash  # flattened in z: distances shrink by at most ``squash``
+        fundus_body = _round_cone(q, (0.23 * s, -0.42 * s, zc), (-0.17 * s, 0.27 * s, zc), 0.42 * s, 0.2 * s)
+        neck = _round_cone(q, (-0.17 * s, 0.27 * s, zc), (-0.47 * s, 0.52 * s, zc + 0.15 * s), 0.2 * s, 0.12 * s)
+        sac = _smooth_union(fundus_body, neck, 0.1 * s) * squash
+        return _smooth_max(sac, -p[:, 2], 0.1 * s)
+
+    return sdf, (-0.65 * s, -0.95 * s, 0.0), (0.7 * s, 0.7 * s, 0.65 * s)
+
+
 def liver(scale: float = 0.15, h: float | None = None) -> TetMesh:
     """An organ-like liver lobe pair of about ``2 scale`` x ``1.1 scale`` x ``0.7 scale`` [m]."""
     sdf, lo, hi = liver_sdf(scale)
@@ -283,8 +324,14 @@ def kidney(scale: float = 0.11, h: float | None = None) -> TetMesh:
     return from_sdf(sdf, lo, hi, scale / 8.0 if h is None else h, source="procedural:kidney")
 
 
+def gallbladder(scale: float = 0.05, h: float | None = None) -> TetMesh:
+    """A pear-shaped gallbladder about ``1.7 scale`` long, ``0.85 scale`` wide and ``0.6 scale`` high [m]."""
+    sdf, lo, hi = gallbladder_sdf(scale)
+    return from_sdf(sdf, lo, hi, scale / 6.0 if h is None else h, source="procedural:gallbladder")
+
+
 SHAPES = {"box": box, "beam": beam, "cube": cube, "cylinder": cylinder, "slab": slab, "liver": liver,
-          "kidney": kidney}
+          "kidney": kidney, "gallbladder": gallbladder}
 
 
 def make(shape: str, **params) -> TetMesh:

@@ -43,6 +43,7 @@ class RenderObject:
     velocity: np.ndarray | None = None
     optics: object | None = None  # a materials.optics.OpticalMaterial replacing the preset's (scene overrides)
     name: str = ""  # the scene's name of the object, for messages
+    vertex_albedo: np.ndarray | None = None  # (n, 3) linear RGB replacing the material's albedo (renderer.fieldmap)
 
 
 @dataclass

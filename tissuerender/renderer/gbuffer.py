@@ -10,18 +10,19 @@ from dataclasses import dataclass
 import numpy as np
 
 import materials
-from materials.textures import sample_bilinear
+from materials.textures import mip_chain, sample_mipmapped
 from sim.mesh.surface import box_uv, vertex_normals
 from tissuerender.renderer.bsdf.mucosa import layer_arrays, layer_channels
 from tissuerender.renderer.camera import Camera, camera_basis
+from tissuerender.renderer.fieldmap import apply_vertex_albedo
 from tissuerender.renderer.raster import interpolate_gbuffer, material_lookup, rasterize_objects
 
 
 @dataclass
 class RenderSurface:
     """Every object's triangles in one mesh: vertex ``points`` (n, 3), ``normals`` (n, 3), ``attributes``
-    (n, 5: velocity and UV, linear over a triangle), ``triangles`` (t, 3) and each triangle's material
-    index ``tri_material`` (t,) into the frame's material list."""
+    (n, 8: velocity, UV and the field colour map's vertex albedo, NaN without one; linear over a triangle),
+    ``triangles`` (t, 3) and each triangle's material index ``tri_material`` (t,) into the frame's material list."""
 
     points: np.ndarray
     triangles: np.ndarray
@@ -72,7 +73,7 @@ def material_optics(objects) -> list:
 
 def merge_objects(objects) -> RenderSurface:
     """The objects' meshes in one :class:`RenderSurface` (vertex normals computed where an object has none)."""
-    pts, tris, nrm, vel, tri_mat, uvs = [], [], [], [], [], []
+    pts, tris, nrm, vel, tri_mat, uvs, colours = [], [], [], [], [], [], []
     offset = 0
     for k, obj in enumerate(objects):
         p = np.asarray(obj.points, float)
@@ -87,12 +88,14 @@ def merge_objects(objects) -> RenderSurface:
         # without UVs, the box projection in metres of procedural bodies (a texture keeps its physical size)
         uvs.append(box_uv(p, np.asarray(n, float)) if obj.uv is None else np.asarray(obj.uv, float).reshape(-1, 2))
         tri_mat.append(np.full(t.shape[0], k, np.int64))
+        vertex_albedo = getattr(obj, "vertex_albedo", None)
+        colours.append(np.full_like(p, np.nan) if vertex_albedo is None else np.asarray(vertex_albedo, float))
         offset += p.shape[0]
     if not pts:
         z = np.zeros((0, 3))
-        return RenderSurface(z, np.zeros((0, 3), np.int64), z, np.zeros((0, 5)), np.zeros(0, np.int64))
-    # velocity and UV travel together as one linearly interpolated vertex attribute (n, 5)
-    attributes = np.concatenate([np.concatenate(vel), np.concatenate(uvs)], axis=1)
+        return RenderSurface(z, np.zeros((0, 3), np.int64), z, np.zeros((0, 8)), np.zeros(0, np.int64))
+    # velocity, UV and vertex albedo travel together as one linearly interpolated vertex attribute (n, 8)
+    attributes = np.concatenate([np.concatenate(vel), np.concatenate(uvs), np.concatenate(colours)], axis=1)
     return RenderSurface(np.concatenate(pts), np.concatenate(tris), np.concatenate(nrm), attributes,
                          np.concatenate(tri_mat))
 
@@ -154,13 +157,25 @@ def rasterise(surface: RenderSurface, camera: Camera, supersampling: int, jitter
     return RenderSurface(P, T, N, V, tri_mat), Raster(depth, tri_id, bary)
 
 
-def textured_surface(optics, mat, uv, albedo, n, alpha):
+def sample_footprint(position, normal, wo, camera: Camera, raster_width: int) -> np.ndarray:
+    """Width [m] of the surface one raster sample covers (k,): its distance times the sample's angle
+    ``2 tan(fov / 2) / width`` (the horizontal field of view over the raster's width), stretched by ``1 / |n . wo|``
+    along the slope (at most 8 x: a grazing surface is blurred no further). The texture lookup's footprint."""
+    d = np.linalg.norm(position - np.asarray(camera.position, float), axis=1)
+    angle = 2.0 * np.tan(0.5 * np.radians(float(camera.fov_deg))) / max(int(raster_width), 1)
+    return d * angle / np.maximum(np.abs(np.einsum("ij,ij->i", normal, wo)), 0.125)
+
+
+def textured_surface(optics, mat, uv, albedo, n, alpha, footprint=None):
     """Albedo, shading normals and a roughness factor of layered materials that have a texture, from their
     baked mucosa texture (``materials.textures``) sampled bilinearly at the pixels' UVs, one tile per
     ``texture_period``. The tangent-space normal map is applied in the box-projection frame (the two
     world axes the UVs were taken along), which is the surface's tangent plane on the flat faces the
     projection is made for. The roughness map (0.7 ... 1.3 x, following the mottle) scales ``alpha`` and
-    is returned as a factor for the granular layer's roughness (1 where untextured)."""
+    is returned as a factor for the granular layer's roughness (1 where untextured). With ``footprint`` (k,) [m]
+    (:func:`sample_footprint`) the lookups are mip-mapped (``materials.textures.sample_mipmapped``, one texture
+    tile of ``texture_size`` texels per ``texture_period``): a texture seen from afar reads as its average instead
+    of speckle; without it, bilinear."""
     out_albedo, out_n, out_alpha = albedo.copy(), n.copy(), alpha.copy()
     factor = np.ones(albedo.shape[0])
     for mid, o in enumerate(optics):
@@ -171,10 +186,12 @@ def textured_surface(optics, mat, uv, albedo, n, alpha):
         if sel.size == 0:
             continue
         st = uv[sel] / layers.texture_period
-        out_albedo[sel] = sample_bilinear(layers.baked_albedo(), st)
-        factor[sel] = sample_bilinear(layers.baked_roughness_factor()[..., None], st)[:, 0]
+        size = layers.baked_albedo().shape[1]
+        texels = np.ones(sel.size) if footprint is None else footprint[sel] / layers.texture_period * size
+        out_albedo[sel] = sample_mipmapped(mip_chain(layers.baked_albedo()), st, texels)
+        factor[sel] = sample_mipmapped(mip_chain(layers.baked_roughness_factor()[..., None]), st, texels)[:, 0]
         out_alpha[sel] = alpha[sel] * factor[sel]
-        tn = sample_bilinear(layers.baked_normal(), st)
+        tn = sample_mipmapped(mip_chain(layers.baked_normal()), st, texels)
         axis = np.argmax(np.abs(n[sel]), axis=1)
         first = np.where(axis == 0, 1, 0)  # box_uv: u along y for x-facing, else along x
         second = np.where(axis == 2, 1, 2)  # v along y for z-facing, else along z
@@ -204,10 +221,14 @@ def shading_points(surface: RenderSurface, raster: Raster, camera: Camera, optic
     if motion:
         gbuffer["velocity"] = np.einsum("kc,kcd->kd", b, V[corner][:, :, :3])
     if textured:
-        uv = np.einsum("kc,kcd->kd", b, V[corner][:, :, 3:])
+        uv = np.einsum("kc,kcd->kd", b, V[corner][:, :, 3:5])
         gbuffer["uv"] = uv
-        albedo, n, alpha, rough_factor = textured_surface(optics, mat, uv, albedo, n, alpha)
+        footprint = sample_footprint(pos, n, wo, camera, raster.depth.shape[1])
+        albedo, n, alpha, rough_factor = textured_surface(optics, mat, uv, albedo, n, alpha, footprint)
         gbuffer.update(albedo=albedo, normal=n, roughness=alpha)
+    if np.isfinite(V[:, 5:8]).any():  # a field colour map on some object (renderer.fieldmap)
+        albedo = apply_vertex_albedo(albedo, V[:, 5:8], T, tri, raster.bary[jj, ii])
+        gbuffer["albedo"] = albedo
     layers = layer_arrays(optics, mat, rough_factor)
     gbuffer["specular"] = f0
     if layers is not None:

@@ -63,6 +63,7 @@ SECTIONS: tuple[Section, ...] = (
     Section("objects.tractions", schema.Traction, base=schema.Region),
     Section("objects.paint", schema.PaintStroke),
     Section("objects.floor", schema.FloorSpec),
+    Section("objects.field_colours", schema.FieldColours),
     Section("simulation", schema.Simulation),
     *(Section(f"simulation.{name}", entry.scene_settings) for name, entry in REGISTRY.items()),
     Section("tools", schema.Tool),

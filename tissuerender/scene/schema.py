@@ -25,6 +25,7 @@ from tissuerender.scene.bc_schema import HeldComponents
 from tissuerender.scene.cut_schema import CUT_MATERIALS, CutSpec
 from tissuerender.scene.interaction_schema import ContactSpec, FloorSpec, GraspSpec  # noqa: F401 (ContactSpec: load.SceneFile)
 from tissuerender.scene.optics_schema import LayerOverride
+from tissuerender.scene.field_schema import FieldColours
 from tissuerender.scene.shapes import SHAPES
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
@@ -152,7 +153,7 @@ class ObjectSpec(Strict):
         "grid cell [m] of a procedural tet mesh (default min(size)/4, organs scale/6) or of the voxelised surface "
         "of a mesh body (default 1/8 of its smallest extent); a body may have at most 400,000 tets"))
     scale: Annotated[float, Field(gt=0.0, le=1e3)] | None = Field(None, description=(
-        "size [m] of an organ shape (liver 0.15, kidney 0.11 by default); for a mesh file (body or static surface), "
+        "size [m] of an organ shape (liver 0.15, kidney 0.11, gallbladder 0.05 by default); for a mesh file (body or static surface), "
         "a uniform scale of the file's coordinates, applied before position"))
     mesh: str | None = Field(None, description=(
         "path relative to the scene: a body's tet mesh (.msh gmsh 1, 2.2 or 4, .vtu, .vtk unstructured grid, .mesh) "
@@ -176,6 +177,8 @@ class ObjectSpec(Strict):
         "parenchyma; docs/interaction.md, \"Cutting\")"))
     paint: Annotated[list[PaintStroke], Field(max_length=1000)] = Field([], description=(
         "body: heterogeneous stiffness, poly6 strokes (Qian 4.26-4.28; table below)"))
+    field_colours: FieldColours | None = Field(None, description=(
+        "body: draw its surface coloured by a field (displacement) through a colormap (table below)"))
 
     @model_validator(mode="after")
     def _geometry_source(self):

@@ -17,7 +17,7 @@ DEFAULT_SIZE = {
     "slab": (0.2, 0.2, 0.03),
 }
 # Default ``scale`` [m] of each organ shape; organ SDFs fit inside a box of about ORGAN_EXTENT * scale per side.
-DEFAULT_SCALE = {"liver": 0.15, "kidney": 0.11}
+DEFAULT_SCALE = {"liver": 0.15, "kidney": 0.11, "gallbladder": 0.05}
 ORGAN_EXTENT = 2.2
 ORGAN_SHAPES = tuple(DEFAULT_SCALE)
 SHAPES = tuple(DEFAULT_SIZE) + ORGAN_SHAPES

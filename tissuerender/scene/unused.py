@@ -46,7 +46,7 @@ def _objects(scene):
         key = f"objects[{i}]"
         given = _set(obj)
         if obj.kind == "surface":
-            for name in ("render_subdivision", "override"):
+            for name in ("render_subdivision", "override", "field_colours"):
                 if name in given:
                     return f"{key}.{name}", (f"a static surface is rendered as its file's triangles and never "
                                              f"simulated: {name!r} has no effect on it (only bodies take it); remove it")
