@@ -85,6 +85,7 @@ def motion_share(scene, out: Path) -> tuple[float, StageRecorder]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="160x120, two rounds: checks the script works")
+    parser.add_argument("--rounds", type=int, default=None, help="interleaved rounds (default 7, --quick 2)")
     args = parser.parse_args()
     scene = load_scene(SCENE)
     width, height = (160, 120) if args.quick else (640, 480)
@@ -93,7 +94,7 @@ def main() -> None:
                                                                              "passes": every}))
     checked = check_scene(scene)
     world, plan = checked.world, checked.plan
-    rounds = 2 if args.quick else 7
+    rounds = args.rounds or (2 if args.quick else 7)
     variants = {"colour": ([], False), "colour_passes": (list(groundtruth.PASS_NAMES), False),
                 "colour_passes_files": (list(groundtruth.PASS_NAMES), True), "colour_all": (every, True)}
     seconds = {name: [] for name in variants}
