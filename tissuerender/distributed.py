@@ -64,18 +64,23 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, announ
     else:
         threads = worker_threads(workers)
         # NUMBA_NUM_THREADS is read when numba is imported: set before each worker process starts (a spawned
-        # process imports the parent's __main__, and with it numba, before the nanny's ``env`` applies)
-        spawn_env = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), "NUMBA_NUM_THREADS": str(threads)}
+        # process imports the parent's __main__, and with it numba, before the nanny's ``env`` applies).
+        # MALLOC_TRIM_THRESHOLD_ (Dask's default 65536) is dropped: any glibc threshold set by the environment
+        # turns off glibc's adaptive mmap threshold, so every NumPy temporary over 128 KB is mmap'ed and
+        # unmapped again; a 640x480 frame then takes 12x the page faults and +45 % CPU (docs/dask.md, "Per-frame
+        # overhead"). None unsets a key (distributed.nanny._get_env_variables); a value in our own environment
+        # is still passed on.
+        spawn_env = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), "MALLOC_TRIM_THRESHOLD_": None,
+                     "NUMBA_NUM_THREADS": str(threads)}
         with dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_env}):
-            saved = os.environ.get("NUMBA_NUM_THREADS")
+            saved = dict(os.environ)
             try:
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                        env={"NUMBA_NUM_THREADS": str(threads)}, silence_logs=logging.ERROR)
-            finally:  # the nanny sets it in this process's environment too: put it back
-                if saved is None:
-                    os.environ.pop("NUMBA_NUM_THREADS", None)
-                else:
-                    os.environ["NUMBA_NUM_THREADS"] = saved
+            finally:  # the nanny sets them in this process's environment too: put it back as it was
+                for name in set(os.environ) - set(saved):
+                    del os.environ[name]
+                os.environ.update(saved)
         client = Client(cluster)
     try:
         n = len(client.scheduler_info().get("workers", {}))

@@ -100,12 +100,19 @@ def exr_channels(hdr: np.ndarray, passes: dict, K: np.ndarray | None = None, len
     return channels
 
 
+# Stored uncompressed, like the passes' .npy masters: one 640x480 liver_probe frame with the four single-frame
+# passes writes in 0.14 s and 14.8 MB so, against ZIP's 1.2 s and 9.3 MB, RLE's 0.52 s and 13.5 MB and PIZ's
+# 2.8 s and 8.1 MB (all lossless; benchmarks/passes_cost.py, docs/ground-truth.md "Cost"); ZIP alone cost a fifth
+# of the colour frame, and the motion passes rewrite the file once more at the end of the sequence.
+EXR_COMPRESSION = "NO_COMPRESSION"
+
+
 def write_exr(path: Path, hdr: np.ndarray, passes: dict, K: np.ndarray | None = None, lens=None) -> None:
-    """One multi-layer scanline OpenEXR (ZIP compression, lossless) with ``exr_channels``."""
+    """One multi-layer scanline OpenEXR (uncompressed, ``EXR_COMPRESSION``) with ``exr_channels``."""
     import OpenEXR  # imported here: only renders that ask for exr pay for loading it
 
     channels = exr_channels(hdr, passes, K, lens)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header = {"compression": getattr(OpenEXR, EXR_COMPRESSION), "type": OpenEXR.scanlineimage}
 
     def write(tmp):
         with OpenEXR.File(header, channels) as f:
@@ -324,7 +331,7 @@ def _add_exr_layers(path: Path, passes: dict) -> bool:
     if set(added) <= set(channels):
         return False
     channels.update(added)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    header = {"compression": getattr(OpenEXR, EXR_COMPRESSION), "type": OpenEXR.scanlineimage}
 
     def write(tmp):
         with OpenEXR.File(header, channels) as f:
