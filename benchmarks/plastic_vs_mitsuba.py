@@ -3,8 +3,9 @@
 illumination only, box pixel filter), compared by FLIP (after the same ACES + sRGB tone map) and
 relative RMSE of the linear HDR. Target: FLIP <= 0.01 on each.
 
-Mitsuba is used only here, never at run time: `.venv/bin/pip install mitsuba` first (the script says
-so and exits 2 when it is missing).
+Mitsuba is never used at render time; this benchmark and the accuracy report's cross-check
+(tissuerender/report/mitsuba.py, whose scene this script renders) need it: `.venv/bin/pip install -e '.[report]'`
+first (the script says so and exits 2 when it is missing).
 
 Usage: .venv/bin/python benchmarks/plastic_vs_mitsuba.py [--quick]
 Last line: one JSON object {"<scene>": {"flip": ..., "rel_rmse": ...}, ..., "max_flip": ...}.
@@ -24,12 +25,10 @@ sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirna
 
 import numpy as np  # noqa: E402
 
-import postfx  # noqa: E402
-from materials import get_preset  # noqa: E402
-from postfx.tonemap import Tonemap  # noqa: E402
 from tissuerender.golden import flip  # noqa: E402
 from tissuerender.renderer import AreaLight, Camera, RenderObject, RenderSettings, render_frame  # noqa: E402
-from tissuerender.renderer.light import light_frame  # noqa: E402
+# the same Mitsuba scene as the accuracy report's cross-check (scalar_rgb, direct, box filter)
+from tissuerender.report.mitsuba import render_mitsuba, tonemapped as to_ldr  # noqa: E402
 
 
 def plane(size=1.0, z=0.0, tilt_deg=0.0):
@@ -69,49 +68,7 @@ def ours(spec, width, height, samples, ss):
     light = AreaLight(size=lt["size"], radiance=(lt["radiance"],) * 3, attach="world", position=lt["position"],
                       normal=lt["normal"], sampling="uniform", samples=samples)
     out = render_frame(objects, cam, light, RenderSettings(shadows=True, supersampling=ss))
-    return out.hdr.astype(np.float64), cam, light
-
-
-def write_obj(path, pts, tris, normals):
-    with open(path, "w") as f:
-        f.writelines(f"v {x:.9g} {y:.9g} {z:.9g}\n" for x, y, z in pts)
-        f.writelines(f"vn {x:.9g} {y:.9g} {z:.9g}\n" for x, y, z in normals)
-        f.writelines(f"f {a + 1}//{a + 1} {b + 1}//{b + 1} {c + 1}//{c + 1}\n" for a, b, c in tris)
-
-
-def render_mitsuba(spec, cam, light, width, height, spp, folder):
-    import mitsuba as mi
-
-    mi.set_variant("scalar_rgb")
-    optics = get_preset("plastic").optics
-    bsdf = {"type": "roughplastic", "distribution": "ggx", "alpha": optics.roughness, "int_ior": optics.ior,
-            "ext_ior": 1.0, "nonlinear": False, "diffuse_reflectance": {"type": "rgb", "value": list(optics.albedo)}}
-    centre, normal, eu, ev = light_frame(light, cam)
-    to_world = np.eye(4)
-    to_world[:3, 0], to_world[:3, 1], to_world[:3, 2], to_world[:3, 3] = eu, ev, normal, centre
-    scene = {
-        "type": "scene",
-        "integrator": {"type": "direct"},
-        "sensor": {"type": "perspective", "fov": cam.fov_deg, "fov_axis": "x", "near_clip": 0.01, "far_clip": 20.0,
-                   "to_world": mi.ScalarTransform4f.look_at(origin=list(cam.position), target=list(cam.look_at),
-                                                            up=list(cam.up)),
-                   "film": {"type": "hdrfilm", "width": width, "height": height, "rfilter": {"type": "box"},
-                            "pixel_format": "rgb"},
-                   "sampler": {"type": "independent", "sample_count": spp}},
-        "light": {"type": "rectangle", "to_world": mi.ScalarTransform4f(to_world.tolist()),
-                  "emitter": {"type": "area", "radiance": {"type": "rgb", "value": list(light.radiance)}}},
-    }
-    for i, (p, t, n) in enumerate(spec["meshes"]):
-        path = Path(folder) / f"mesh{i}.obj"
-        write_obj(path, p, t, n)
-        scene[f"mesh{i}"] = {"type": "obj", "filename": str(path), "bsdf": bsdf}
-    image = mi.render(mi.load_dict(scene), spp=spp)
-    return np.asarray(image, dtype=np.float64)[..., :3]
-
-
-def ldr(hdr, cam):
-    return postfx.apply_chain(hdr.astype(np.float32), np.zeros(hdr.shape[:2], np.float32), [("tonemap", Tonemap())],
-                              postfx.Lens(cam.fov_deg, hdr.shape[1], hdr.shape[0]), backend="numpy").image
+    return out.hdr.astype(np.float64), objects, cam, light
 
 
 def main() -> int:
@@ -131,12 +88,12 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as folder:
         for name, spec in SCENES.items():
             start = time.perf_counter()
-            a, cam, light = ours(spec, width, height, samples, ss)
+            a, objects, cam, light = ours(spec, width, height, samples, ss)
             t_ours = time.perf_counter() - start
             start = time.perf_counter()
-            b = render_mitsuba(spec, cam, light, width, height, spp, folder)
+            b = render_mitsuba(objects, cam, light, spp, Path(folder))
             t_mi = time.perf_counter() - start
-            mean_flip, _ = flip(ldr(b, cam), ldr(a, cam))
+            mean_flip, _ = flip(to_ldr(b, cam), to_ldr(a, cam))
             rel = float(np.sqrt(np.mean((a - b) ** 2)) / max(np.sqrt(np.mean(b**2)), 1e-30))
             ratio = float(a.mean() / max(b.mean(), 1e-30))
             result[name] = {"flip": round(mean_flip, 5), "rel_rmse": round(rel, 5), "mean_ratio": round(ratio, 4),

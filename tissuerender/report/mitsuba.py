@@ -113,7 +113,8 @@ def render_mitsuba(objects, camera, light, spp: int, folder: Path, seed: int = 0
     return np.asarray(mi.render(mi.load_dict(scene), spp=spp), dtype=np.float64)[..., :3]
 
 
-def _ldr(hdr: np.ndarray, camera) -> np.ndarray:
+def tonemapped(hdr: np.ndarray, camera) -> np.ndarray:
+    """The linear HDR frame through the ACES + sRGB tone map (the NumPy post-effects), as FLIP compares it."""
     import postfx
     from postfx.tonemap import Tonemap
 
@@ -130,15 +131,15 @@ def run_scene(name: str, sweep: dict, tick=lambda: None) -> dict:
         coarse = None
         if sweep.get("self_check", True):
             coarse = render_mitsuba(objects, camera, light, max(1, sweep["spp"] // 4), Path(folder), seed=1)
-    ref_ldr = _ldr(reference, camera)
-    self_flip = float("nan") if coarse is None else flip(ref_ldr, _ldr(coarse, camera))[0]
+    ref_ldr = tonemapped(reference, camera)
+    self_flip = float("nan") if coarse is None else flip(ref_ldr, tonemapped(coarse, camera))[0]
     render_ours(objects, camera, light, 1, scene.seed)  # compile or load the kernels before timing
     points = []
     for m in sweep["samples"]:
         start = time.perf_counter()
         ours = render_ours(objects, camera, light, m, scene.seed)
         seconds = time.perf_counter() - start
-        mean_flip, _ = flip(ref_ldr, _ldr(ours, camera))
+        mean_flip, _ = flip(ref_ldr, tonemapped(ours, camera))
         points.append({"samples": m, "flip": float(mean_flip),
                        "brightness_ratio": float(ours.mean() / max(reference.mean(), 1e-30)),
                        "rel_rmse": float(np.sqrt(np.mean((ours - reference) ** 2)) / max(np.sqrt(np.mean(reference ** 2)),
