@@ -6,12 +6,12 @@ model stepped with none of these (the slab then falls through the liver) and wit
 
 Usage: .venv/bin/python benchmarks/contact_cost.py [--quick]
 The three variants step the same model from rest over the scene's first steps in interleaved rounds (off, probe, on,
-off, ...) after one warm-up each, so a machine that slows down or speeds up affects both alike; figures are medians
-over the rounds. ``--quick``: 2 rounds of 6 steps, to check the script works. Last line: one JSON object with
-``seconds_step_off``, ``seconds_step_probe`` (the probe's contact alone, liver_probe as shipped), ``seconds_step_on``
-(per step), ``fraction`` = (on - off) / on, the share of a step with contact and grasping that they take,
-``fraction_beyond_probe`` = (on - probe) / on, the grasp's and the contacts' share, and ``grasped_nodes``,
-``slab_liver_contacts``, ``wall_contacts`` (nodes in contact in the last substep: how much they did).
+off, ...) after one warm-up each (every run from rest with the jaws open), so a machine that slows down or speeds up
+affects all alike; figures are medians over the rounds. ``--quick``: 2 rounds of 6 steps, to check the script works.
+Last line: one JSON object with ``seconds_step_off``, ``seconds_step_probe`` (the probe's contact alone, liver_probe
+as shipped), ``seconds_step_on`` (per step), ``fraction`` = (on - off) / on, the share of a step with contact and
+grasping that they take, ``fraction_beyond_probe`` = (on - probe) / on, the grasp's and the contacts' share, and
+``grasped_nodes``, ``slab_liver_contacts``, ``wall_contacts`` (nodes in contact in the last substep: how much they did).
 """
 from __future__ import annotations
 
@@ -31,6 +31,7 @@ sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirna
 
 import numpy as np  # noqa: E402
 
+from sim.contact import GraspState  # noqa: E402
 from sim.integrators import make_integrator  # noqa: E402
 from sim.model import State  # noqa: E402
 from tissuerender.checks import check_scene  # noqa: E402
@@ -53,6 +54,8 @@ def scene_with_contact():
 
 def run(integrator, model, steps: int, dt: float) -> float:
     state = State.at_rest(model)
+    # every run from rest with open jaws: a grasp left closed by the previous run would hold its nodes from t = 0
+    integrator.grasps = [GraspState(g.grasp, g.probe) for g in getattr(integrator, "grasps", ())]
     start = time.perf_counter()
     for _ in range(steps):
         state = integrator.step(state, dt)

@@ -56,10 +56,18 @@ class Probe:
 
     def push_out(self, x: np.ndarray, t: float, inv_mass: np.ndarray, load: np.ndarray) -> int:
         """Project the free nodes out of the probe at ``t``, summing into ``load`` (:func:`resolve_contact_load`):
-        every capsule in turn (a mesh tool, ``sim.contact_bodies.MeshProbe``, its triangles instead)."""
-        centre = self.position(t)
-        return sum(int(push_out_of_capsule_load(x, inv_mass, a, b, float(r), centre, load))
-                   for a, b, r in self.capsules(t))
+        every capsule in turn (a mesh tool, ``sim.contact_bodies.MeshProbe``, its triangles instead). The centre and
+        capsules at ``t`` are kept: every sweep of a substep (``iterations`` of them) asks for the same time, and
+        rebuilding them cost more than the kernel on a liver (issue 21, ``benchmarks/contact_cost.py``)."""
+        kept = getattr(self, "_pushed", None)
+        if kept is None or kept[0] != t:
+            kept = (t, self.position(t), [(a, b, float(r)) for a, b, r in self.capsules(t)])
+            self._pushed = kept
+        _, centre, capsules = kept
+        moved = 0
+        for a, b, r in capsules:
+            moved += push_out_of_capsule_load(x, inv_mass, a, b, r, centre, load)
+        return int(moved)
 
 
 def resolve_contact(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray) -> int:
