@@ -153,8 +153,9 @@ class QuadraticReferenceIntegrator(ReferenceIntegrator):
         T = models.tangent(name, self.deformation_gradients(x), mu, lam, eta, a0, vl=self.curves)
         if project:
             # PSD per Gauss point (the 9 x 9 tangent), which makes every element Hessian, a positive sum of
-            # B^T T B, PSD too; clamping the 30 x 30 element Hessians instead costs LAPACK calls that threaded
-            # BLAS slows a hundredfold on a loaded machine (measured: 12 s for 240 of them against 6 ms for 240 9 x 9)
+            # B^T T B, PSD too; clamping the 30 x 30 element Hessians instead costs one LAPACK eigen-solve per
+            # element, which threaded BLAS makes far slower than the 9 x 9 projections (docs/report.md,
+            # "Discretisation error")
             T = tensor.project_psd(T)
         T = T.reshape(m, -1, 3, 3, 3, 3)  # (m, q, i, j, k, l): dP_ij / dF_kl
         # two plain einsums (no BLAS: see above): sum_j grad N_a,j T_ijkl, then sum_q,l w ... grad N_b,l
