@@ -92,3 +92,17 @@ def variational_error(model, x, x_ref) -> float:
 def relative_l2(u, u_ref) -> float:
     """||u - u_ref|| / ||u_ref|| over all nodes (displacements (n, 3))."""
     return float(np.linalg.norm(u - u_ref) / max(np.linalg.norm(u_ref), 1e-300))
+
+
+def zhang_cnn_cube() -> tuple[Model, int]:
+    """Zhang §4.3.2.2's cube for the CNN: 11 x 11 x 11 nodes (6,000 tets), 1 m, side faces fixed, 100 Pa normal
+    load on the top face, E = 3,500 Pa, nu = 0.45, rho = 1,060 kg/m^3; with the index of the top face's centre node."""
+    mesh = procedural.box((1.0, 1.0, 1.0), (10, 10, 10))
+    model = Model.from_mesh(mesh, E=3500.0, nu=0.45, density=1060.0)
+    for axis in (0, 1):
+        for side in ("min", "max"):
+            model.fixed[select.nodes_on_side(mesh.points, axis, side)] = True
+    top = select.nodes_on_side(mesh.points, 2, "max")
+    model.external_force = np.zeros_like(mesh.points)
+    model.external_force[top, 2] = -100.0 * 1.0 / top.size  # 100 Pa on the 1 m^2 top face
+    return model, int(np.argmin(np.linalg.norm(mesh.points - [0.5, 0.5, 1.0], axis=1)))

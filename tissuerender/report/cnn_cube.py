@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 
+from sim.cases.zhang import zhang_cnn_cube
 from sim.errors import SimulationDiverged
 from sim.integrators import make_integrator
-from sim.mesh import procedural, select
-from sim.model import Model, State
+from sim.model import State
 
 SWEEPS = {
     "full": {"small_dt": 0.001, "small_t": 1.0, "large_dt": 0.02, "large_t": 2.0},
@@ -24,18 +24,6 @@ SWEEPS = {
     "tiny": {"small_dt": 0.001, "small_t": 0.05, "large_dt": 0.02, "large_t": 1.0},
 }
 SETTINGS = {"force_model": "linear_fem", "rayleigh_beta": 0.002}
-
-
-def zhang_cube() -> tuple[Model, int]:
-    mesh = procedural.box((1.0, 1.0, 1.0), (10, 10, 10))
-    model = Model.from_mesh(mesh, E=3500.0, nu=0.45, density=1060.0)
-    for axis in (0, 1):
-        for side in ("min", "max"):
-            model.fixed[select.nodes_on_side(mesh.points, axis, side)] = True
-    top = select.nodes_on_side(mesh.points, 2, "max")
-    model.external_force = np.zeros_like(mesh.points)
-    model.external_force[top, 2] = -100.0 * 1.0 / top.size  # 100 Pa on the 1 m^2 top face
-    return model, int(np.argmin(np.linalg.norm(mesh.points - [0.5, 0.5, 1.0], axis=1)))
 
 
 def _run(model, name: str, dt: float, t_end: float, **extra) -> dict:
@@ -53,7 +41,7 @@ def _run(model, name: str, dt: float, t_end: float, **extra) -> dict:
 
 
 def run_cnn_cube(sweep: dict, tick=lambda: None) -> dict:
-    model, centre = zhang_cube()
+    model, centre = zhang_cnn_cube()
     runs = {}
     for key, name, dt, t_end in (("explicit_small", "explicit", sweep["small_dt"], sweep["small_t"]),
                                  ("cnn_small", "cnn", sweep["small_dt"], sweep["small_t"]),

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from sim.cases.msd import MassSpringDamper, saturate, simulate
+from sim.cases.zhang import zhang_cnn_cube
 from sim.errors import SimulationDiverged
 from sim.integrators import make_integrator
-from sim.mesh import procedural, select
-from sim.model import Model, State
+from sim.model import State
 
 MSD = MassSpringDamper()  # m = 0.2 kg, k = 400 N/m, d = 2, l0 = 1 m, y0 = -1 m, v0 = -5 m/s
 
@@ -54,21 +54,6 @@ def test_large_step_explicit_diverges_and_cnn_stays_bounded_better_with_smaller_
     assert errors[0] > errors[1] > errors[2]  # closer to the analytic solution as K gets smaller
 
 
-def _zhang_cube():
-    """11 x 11 x 11 nodes (6,000 tets), 1 m, side faces fixed, 100 Pa normal load on top,
-    E = 3500 Pa, rho = 1060 kg/m^3 (Zhang §4.3.2.2), linear FEM forces with stiffness damping."""
-    mesh = procedural.box((1.0, 1.0, 1.0), (10, 10, 10))
-    model = Model.from_mesh(mesh, E=3500.0, nu=0.45, density=1060.0)
-    for axis in (0, 1):
-        for side in ("min", "max"):
-            model.fixed[select.nodes_on_side(mesh.points, axis, side)] = True
-    top = select.nodes_on_side(mesh.points, 2, "max")
-    model.external_force = np.zeros_like(mesh.points)
-    model.external_force[top, 2] = -100.0 * 1.0 / top.size
-    centre = int(np.argmin(np.linalg.norm(mesh.points - [0.5, 0.5, 1.0], axis=1)))
-    return model, centre
-
-
 SETTINGS = {"force_model": "linear_fem", "rayleigh_beta": 0.002}
 
 
@@ -83,7 +68,7 @@ def _run(model, name, dt, t_end, **extra):
 
 
 def test_cube_small_step_cnn_and_explicit_agree():
-    model, centre = _zhang_cube()
+    model, centre = zhang_cnn_cube()
     assert model.n_nodes == 1331 and model.n_tets == 6000
     explicit, _ = _run(model, "explicit", 0.001, 1.0)
     cnn, _ = _run(model, "cnn", 0.001, 1.0, K=4.0)
@@ -97,7 +82,7 @@ def test_cube_small_step_cnn_and_explicit_agree():
 
 @pytest.mark.parametrize("saturation", ["state", "output"])
 def test_cube_large_step_explicit_blows_up_and_cnn_stays_finite(saturation):
-    model, centre = _zhang_cube()
+    model, centre = zhang_cnn_cube()
     with pytest.raises(SimulationDiverged, match="diverged|non-finite"):
         _run(model, "explicit", 0.02, 2.0)
     state, peak = _run(model, "cnn", 0.02, 2.0, K=4.0, saturation=saturation)
