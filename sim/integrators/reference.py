@@ -168,6 +168,18 @@ class ReferenceIntegrator:
             K = K + sp.diags(self.mass_dof / (h * h))
         return K
 
+    def _descent(self, hessian, g, far: bool, t: float, it: int) -> np.ndarray:
+        """A Newton direction ``-K^-1 g`` that descends, K = ``hessian(project)`` (the free or reduced block)
+        with a tiny diagonal shift; the projected (PSD) Hessian is tried first when ``far`` from equilibrium,
+        the exact one first near it, the other if the first gives no descent."""
+        for project in ((True, False) if far else (False, True)):
+            K = hessian(project)
+            K = K + sp.diags(np.full(K.shape[0], 1e-12 * max(abs(K.diagonal()).max(), 1e-300)))
+            candidate = self._newton_step(K, g)
+            if np.isfinite(candidate).all() and float(g @ candidate) < 0.0:
+                return candidate
+        raise SimulationDiverged(f"reference: no descent direction at t = {t:.6g} s (iteration {it})")
+
     def _newton_step(self, K, g):
         """``-K^-1 g`` by a sparse direct solve (``reference_quadratic`` orders its wider element couplings apart)."""
         return -spsolve(K.tocsc(), g)
@@ -197,17 +209,8 @@ class ReferenceIntegrator:
             # (compressed stable Neo-Hookean elements) its step may not descend, and the PSD-projected
             # one is used. Far from equilibrium (tangled or inverted starts) the projected Hessian goes
             # first: its steps head for the rest shape instead of stalling in a tangled saddle region.
-            dx = None
             far = np.linalg.norm(g) > 1e-3 * scale
-            for project in ((True, False) if far else (False, True)):
-                K = self._hessian(x, h, project)[free][:, free]
-                K = K + sp.diags(np.full(K.shape[0], 1e-12 * max(abs(K.diagonal()).max(), 1e-300)))
-                candidate = self._newton_step(K, g)
-                if np.isfinite(candidate).all() and float(g @ candidate) < 0.0:
-                    dx = candidate
-                    break
-            if dx is None:
-                raise SimulationDiverged(f"reference: no descent direction at t = {t:.6g} s (iteration {it})")
+            dx = self._descent(lambda project: self._hessian(x, h, project)[free][:, free], g, far, t, it)
             step = 1.0
             gnorm = np.linalg.norm(g)
             for _ in range(40):
@@ -280,16 +283,8 @@ class ReferenceIntegrator:
             if gnorm <= self.tol * scale:
                 self.last_iterations, self.last_residual = it, float(gnorm / scale)
                 return x
-            dy = None
-            for project in ((True, False) if gnorm > 1e-3 * scale else (False, True)):
-                K = (Tt @ self._hessian(x, h, project) @ T).tocsc()
-                K = K + sp.diags(np.full(K.shape[0], 1e-12 * max(abs(K.diagonal()).max(), 1e-300)))
-                candidate = self._newton_step(K, g)
-                if np.isfinite(candidate).all() and float(g @ candidate) < 0.0:
-                    dy = candidate
-                    break
-            if dy is None:
-                raise SimulationDiverged(f"reference: no descent direction at t = {t:.6g} s (iteration {it})")
+            dy = self._descent(lambda project: (Tt @ self._hessian(x, h, project) @ T).tocsc(), g,
+                               gnorm > 1e-3 * scale, t, it)
             dx = (T @ dy).reshape(x.shape)
             step = 1.0
             for _ in range(40):
