@@ -77,6 +77,20 @@ def main() -> None:
                 result[f"cantilever_{kind}_L{row['level']}_err"] = float(f"{row['relative_error']:.4g}")
             result["cantilever_converged_tip_m"] = float(f"{case['converged_tip_m']:.6g}")
             continue
+        if name == "viscoelastic_cube":  # tissuerender/report/viscoelastic.py
+            for key in ("prony_thesis_strain", "prony_small_strain"):
+                c = case[key]
+                print(f"viscoelastic cube, strain {c['strain']:g}: F(end)/F_el {c['ratio']:.5f} (predicted "
+                      f"{c['predicted_ratio']:.5f}), tau {c['tau_s']:.4f} s (history update {c['tau_discrete_s']:.4f} s)")
+            for p in case["points"]:
+                err = p.get("rel_l2")
+                print(f"  {p['integrator']} {p['setting']:20s} " + (f"failed: {p['diverged'][:60]}" if err is None else
+                      f"{err:10.4g} (last 2 s {p['late_rel_l2']:.4g}) {p['wall_s_per_sim_s']:10.4g} s/s"))
+                key = f"{name}_{p['integrator']}_{p['setting'].replace(' ', '').replace(',', '_')}"
+                result[f"{key}_err"] = None if err is None else float(f"{err:.4g}")
+                result[f"{key}_s_per_sim_s"] = float(f"{p['wall_s_per_sim_s']:.4g}")
+            result["viscoelastic_cube_tau_s"] = float(f"{case['measures']['tau_s']:.5g}")
+            continue
         print(f"\n{case['title']} ({case['error_label']}; reference order "
               f"{', '.join(f'{o:.2f}' for o in case['convergence']['orders'])}, expected "
               f"{case['convergence']['expected_order']})")

@@ -206,7 +206,7 @@ def figure_png(case: dict) -> bytes:
     Right: error against wall time per simulated second, the Pareto front joined."""
     import matplotlib
 
-    matplotlib.use("Agg")
+    matplotlib.use("Agg")  # off-screen
     import matplotlib.pyplot as plt
 
     colours = {"ebm": "tab:orange", "xpbd": "tab:blue"}
@@ -214,8 +214,7 @@ def figure_png(case: dict) -> bytes:
     ref, thesis = case["reference"], case["prony_thesis_strain"]
     left.plot(ref["t"], ref["force_N"], "k-", lw=2, label="reference (quasi-static)")
     t = np.linspace(0.0, case["setup"]["end_s"], 400)
-    predicted = thesis["elastic_N"] * np.asarray([float(cube_case.continuous_relaxation(s, case["setup"]["ramp_s"]))
-                                                  for s in t])
+    predicted = thesis["elastic_N"] * cube_case.continuous_relaxation(t, case["setup"]["ramp_s"])
     left.plot(t, predicted, "k:", lw=1, label="Prony, linear viscoelasticity x F_el")
     best = {}
     for p in case["points"]:
