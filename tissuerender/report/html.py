@@ -13,7 +13,8 @@ import matplotlib
 matplotlib.use("Agg")  # off-screen: no display on a render node
 import matplotlib.pyplot as plt  # noqa: E402
 
-from tissuerender.report import discretisation, viscoelastic  # noqa: E402
+from tissuerender.report import discretisation  # noqa: E402
+from tissuerender.report import viscoelastic  # noqa: E402
 
 COLOURS = {"xpbd": "tab:blue", "ebm": "tab:orange", "explicit": "tab:red", "cnn": "tab:green",
            "cnn_chainmail": "tab:purple"}
@@ -453,7 +454,8 @@ def cnn_cube_section(case: dict) -> str:
 
 SECTIONS = {"cnn_cube": cnn_cube_section, "indentation": indentation_section,
             "liver_variational": variational_section, "mitsuba": mitsuba_section,
-            discretisation.CASE: discretisation.section_html, viscoelastic.CASE: viscoelastic.section_html}
+            discretisation.CASE: discretisation.section_html}
+SECTIONS[viscoelastic.CASE] = viscoelastic.section_html
 
 def render_html(report: dict) -> str:
     cases = report["cases"]
