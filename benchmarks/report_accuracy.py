@@ -81,7 +81,8 @@ def main() -> None:
             for key in ("prony_thesis_strain", "prony_small_strain"):
                 c = case[key]
                 print(f"viscoelastic cube, strain {c['strain']:g}: F(end)/F_el {c['ratio']:.5f} (predicted "
-                      f"{c['predicted_ratio']:.5f}), tau {c['tau_s']:.4f} s (history update {c['tau_discrete_s']:.4f} s)")
+                      f"{c['predicted_ratio']:.5f}), tau {c['tau_s']:.4f} s (history update "
+                      f"{c['tau_discrete_s']:.4f} s)")
             for p in case["points"]:
                 err = p.get("rel_l2")
                 print(f"  {p['integrator']} {p['setting']:20s} " + (f"failed: {p['diverged'][:60]}" if err is None else

@@ -217,12 +217,13 @@ def figure_png(case: dict) -> bytes:
     t = np.linspace(0.0, case["setup"]["end_s"], 400)
     predicted = thesis["elastic_N"] * cube_case.continuous_relaxation(t, case["setup"]["ramp_s"])
     left.plot(t, predicted, "k:", lw=1, label="Prony, linear viscoelasticity x F_el")
-    best = {}
+    best = {}  # per integrator, its most accurate setting
     for p in case["points"]:
-        if p.get("rel_l2") is not None and (p["integrator"] not in best or p["rel_l2"] < best[p["integrator"]]["rel_l2"]):
+        if p.get("rel_l2") is not None and p["rel_l2"] < best.get(p["integrator"], {}).get("rel_l2", math.inf):
             best[p["integrator"]] = p
     for p in best.values():
-        left.plot(p["t"], p["force_N"], color=colours.get(p["integrator"]), lw=1, label=f"{p['integrator']} {p['setting']}")
+        left.plot(p["t"], p["force_N"], color=colours.get(p["integrator"]), lw=1,
+                  label=f"{p['integrator']} {p['setting']}")
     left.set_xlabel("time [s]")
     left.set_ylabel("reaction force at the held face [N]")
     left.grid(True, alpha=0.3)
