@@ -12,6 +12,8 @@ from sim.contact import Grasp
 from sim.cutting import Cut
 from sim.cutting.surface import cut_surfaces
 from sim.cutting.sweep import capsule_meets_tet
+from sim.integrators.xpbd import blocked
+from sim.integrators.xpbd.removal import TetRemoval
 from sim.integrators.xpbd.solver import XPBD
 from sim.mesh import procedural
 from sim.model import Model, State, rest_shape
@@ -103,6 +105,25 @@ def test_no_tet_inverts_after_the_cut_and_under_gravity_after_it():
     assert state.x[:, 2][np.unique(model.tets)].min() < -1e-4
     orphans = np.setdiff1d(np.arange(model.n_nodes), model.tets)
     assert np.all(state.v[orphans] == 0.0)
+
+
+def test_removed_tets_left_inert_in_the_blocks_give_the_positions_of_blocks_packed_anew(monkeypatch):
+    # a removal leaves a removed tet's lane in the blocked kernel's blocks with every parameter zero (its correction
+    # is then exactly 0.0) and rewrites only the mass rows of the tets around it (sim.integrators.xpbd.removal);
+    # packing the blocks anew at the end of every step with a removal (repack_fraction 0) is the reference. Same
+    # tets, same order within each colour, same per-lane arithmetic: the positions must agree to the bit after the
+    # cut and 0.2 s under gravity.
+    runs = {}
+    for fraction in (0.0, np.inf):
+        monkeypatch.setattr(TetRemoval, "repack_fraction", fraction)
+        _, _, model, integrator, state = _cut_bar(gravity=(0.0, 0.0, -9.81), steps=20)
+        runs[fraction] = (state.x, integrator)
+    removal = runs[np.inf][1].removal
+    assert removal.inert == 48 and runs[0.0][1].removal.inert == 0
+    params = runs[np.inf][1].blocks[1].reshape(-1, blocked.N_ROWS, blocked.LANES)
+    dead = np.setdiff1d(np.arange(params.shape[0] * blocked.LANES), removal.slot)  # removed tets' and padding
+    assert np.all(params[dead // blocked.LANES, :, dead % blocked.LANES] == 0.0)
+    np.testing.assert_array_equal(runs[np.inf][0], runs[0.0][0])
 
 
 def test_grasped_nodes_the_cut_leaves_in_no_tet_let_go():
