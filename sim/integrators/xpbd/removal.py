@@ -31,8 +31,9 @@ from sim.integrators.xpbd.strain import GreenStrainLimits
 class TetRemoval:
     """The removal state of one :class:`sim.integrators.xpbd.solver.XPBD` with a cutter: each original tet's
     position in the colour order (``position_of``, -1 once filtered out), the positions removed since the last
-    :meth:`compact` (``dead``), each position's lane in the blocks (``slot``, the same for every constraint set) and
-    the inert lanes left in them (``inert``)."""
+    :meth:`compact` (``dead``) and, per constraint set, each position's lane in its blocks (``slots[k]``) and the
+    inert lanes left in them (``inert[k]``). A set packed anew elsewhere (a Prony branch after its drift, always
+    from the filtered arrays) is noticed by its blocks' identity and gets a fresh layout."""
 
     # blocks are packed anew once their inert lanes number more than this fraction of the tets kept
     repack_fraction = 1.0 / 16.0
@@ -43,22 +44,32 @@ class TetRemoval:
         self.position_of = np.empty(n, dtype=np.int64)  # the model's tets are the original ones before any cut
         self.position_of[xpbd.tet_order] = np.arange(n)
         self.dead = np.zeros(n, dtype=bool)
-        self.slot = blocked.colour_slots(xpbd.colour_start)[1]
-        self.inert = 0
+        self.packed = [None] * len(xpbd.sets)  # the blocks each layout below belongs to
+        self.slots = [np.zeros(0, dtype=np.int64)] * len(xpbd.sets)
+        self.inert = [0] * len(xpbd.sets)
         # filtered once per step only where every constraint set is the blocked kernel's and nothing else reads
         # the per-tet arrays during the sweeps
         self.deferred = (all(s.blocks is not None for s in xpbd.sets) and xpbd.strain_limits is None
                          and xpbd.green_limits is None)
+
+    def _layout(self, k: int) -> np.ndarray:
+        """Set k's lane per colour-order position; a fresh packing's when its blocks are not those last seen."""
+        blocks = self.xpbd.sets[k].blocks
+        if blocks is not self.packed[k]:
+            self.packed[k] = blocks
+            self.slots[k] = blocked.colour_slots(self.xpbd.colour_start)[1]
+            self.inert[k] = 0
+        return self.slots[k]
 
     def remove(self, removed: np.ndarray) -> None:
         """The cutter has removed the original tets ``removed`` and summed the masses of their nodes again."""
         xp = self.xpbd
         positions = self.position_of[removed]
         self.dead[positions] = True
-        for constraints in xp.sets:
+        for k, constraints in enumerate(xp.sets):
             if constraints.blocks is not None:
-                blocked.make_inert(constraints.blocks[1], self.slot[positions])
-        self.inert += positions.size
+                blocked.make_inert(constraints.blocks[1], self._layout(k)[positions])
+                self.inert[k] += positions.size
         self._masses_changed(self.position_of[xp.cutter.touched_tets()])
         for grasp in xp.grasps:  # a grasped node left in no tet has no mass to hold: it lets go
             if grasp.nodes.size:
@@ -81,9 +92,9 @@ class TetRemoval:
             around = np.flatnonzero((moved[tets[:, 0]] | moved[tets[:, 1]] | moved[tets[:, 2]] | moved[tets[:, 3]])
                                     & ~self.dead)
         if around.size:
-            for constraints in xp.sets:
+            for k, constraints in enumerate(xp.sets):
                 if constraints.blocks is not None:
-                    blocked.set_inverse_masses(constraints.blocks[1], self.slot[around], xp.tets[around],
+                    blocked.set_inverse_masses(constraints.blocks[1], self._layout(k)[around], xp.tets[around],
                                                constraints.Dm_inv[around], xp.w)
 
     def compact(self) -> None:
@@ -93,6 +104,7 @@ class TetRemoval:
         keep = xp.cutter.commit()  # mask over the model's previous tets
         if keep is None:
             return
+        layouts = [self._layout(k) if c.blocks is not None else None for k, c in enumerate(xp.sets)]  # current order
         new_id = np.cumsum(keep) - 1
         kept_mask = keep[xp.tet_order]  # per colour-order position: ~self.dead
         kept = np.flatnonzero(kept_mask)
@@ -104,21 +116,20 @@ class TetRemoval:
         alive = xp.cutter.topology.alive
         self.position_of = np.where(alive, kept_before[self.position_of], -1)
         self.dead = np.zeros(kept.size, dtype=bool)
-        self.slot = take(self.slot)
         if xp.branches is not None:
             xp.branches.tets = xp.tets
             xp.branches.Dm_inv = take(xp.branches.Dm_inv)
             xp.branches.Fv = np.take(xp.branches.Fv, kept, axis=1)
-        repack = self.inert > self.repack_fraction * kept.size
-        for s in xp.sets:
+        for k, s in enumerate(xp.sets):
             s.Dm_inv = take(s.Dm_inv)
             s.alpha_dev, s.alpha_hyd, s.gamma = take(s.alpha_dev), take(s.alpha_hyd), take(s.gamma)
             s.lam_dev, s.lam_hyd = take(s.lam_dev), take(s.lam_hyd)
-            if s.energy is not None or (s.blocks is not None and repack):
+            if s.blocks is not None:
+                self.slots[k] = np.take(layouts[k], kept)
+            if s.energy is not None or (s.blocks is not None and self.inert[k] > self.repack_fraction * kept.size):
                 s.set_rest(s.Dm_inv)  # the model's energy (per-tet data of its own), or blocks packed anew
-        if repack:
-            self.slot = blocked.colour_slots(xp.colour_start)[1]
-            self.inert = 0
+                if s.blocks is not None:
+                    self._layout(k)  # the new packing's, without inert lanes
         base = xp.sets[0]
         xp.Dm_inv, xp.alpha_dev, xp.alpha_hyd, xp.gamma = base.Dm_inv, base.alpha_dev, base.alpha_hyd, base.gamma
         xp.blocks, xp.energy = base.blocks, base.energy
