@@ -16,7 +16,7 @@ The variants run in interleaved rounds (frame, update, cutting_frame, frame, ...
 fresh body each round (its construction not timed), so a machine that slows down or speeds up affects all alike;
 figures are medians over the rounds. ``--quick``: a 6,000-tet body and two rounds, to check the script works.
 
-Usage: .venv/bin/python benchmarks/cut_cost.py [--quick]
+Usage: .venv/bin/python benchmarks/cut_cost.py [--quick] [--rounds N]
 Last line: one JSON object with ``tets``, ``seconds_frame``, ``seconds_update``, ``seconds_cutting_frame``,
 ``tets_removed_update``, ``ratio_update`` (update / frame: the issue's figure, at most 1), ``ratio_cutting_frame``
 (the medians' ratio) and ``ratio_cutting_frame_rounds`` (the median of each round's cutting frame / frame: on a
@@ -90,9 +90,10 @@ def one_update(cells) -> tuple[float, int]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="6,000 tets and two rounds: check the script works")
+    parser.add_argument("--rounds", type=int, default=None, help="timed rounds (default 5; 2 with --quick)")
     args = parser.parse_args()
     cells = (20, 10, 5) if args.quick else (40, 25, 5)
-    rounds = 2 if args.quick else 5
+    rounds = args.rounds if args.rounds is not None else 2 if args.quick else 5
     frame_s, update_s, cutting_s, removed = [], [], [], 0
     for r in range(rounds + 1):  # round 0 warms up (compiles, caches)
         _, integrator, state = body(cells, None, 0.0, 0.0)
