@@ -23,6 +23,7 @@ from sim.contact_mesh import (GRID_CELLS, build_grid, face_adjacency, friction_n
                               project_nodes, pseudonormals, triangle_boxes)
 from sim.mesh.surface import boundary_faces
 from sim.model import Model, PrescribedDisplacement, State
+from sim.pose import orientation_at, quat_matrix
 from sim.probe import Probe
 
 
@@ -149,20 +150,37 @@ class SurfaceContactState:
 
 
 class MeshProbe(Probe):
-    """A rigid tool given by a closed triangle mesh (``points`` [m] relative to its path point, outward wound
-    ``faces``), translated along its keyframed path; nodes inside are pushed onto its surface (``sim.contact_mesh``,
-    the surface with infinite mass). Its load is summed as the capsules' (``sim.probe``), torque about the path
-    point."""
+    """A rigid tool given by a closed triangle mesh (``points`` [m] in the tool frame, its origin the path point;
+    outward wound ``faces``), moved along its keyframed path and, with ``orientations`` (k, 4), one unit quaternion
+    ``(w, x, y, z)`` per keyframe taking the tool frame to the world, turned by their slerp (``sim.pose``; None:
+    never turned). Nodes inside are pushed onto its surface (``sim.contact_mesh``, the surface with infinite mass):
+    the surface is the points turned by the rotation at the substep's time about the path point, translated there
+    (its normals and grid built again only when the rotation changes). Its load is summed as the capsules'
+    (``sim.probe``), torque about the path point."""
 
     KINDS = ("mesh",)
 
-    def __init__(self, points, faces, times, positions, reach: float | None = None):
+    def __init__(self, points, faces, times, positions, reach: float | None = None, orientations=None):
         super().__init__(kind="mesh", radius=0.0, times=times, positions=positions)
         self.points = np.asarray(points, dtype=np.float64)
         self.faces = np.asarray(faces, dtype=np.int64)
+        self.orientations = None
+        if orientations is not None:
+            q = np.asarray(orientations, dtype=np.float64).reshape(-1, 4)
+            if q.shape[0] != self.times.size or not (np.linalg.norm(q, axis=1) > 0.0).all():
+                raise ValueError(f"a mesh tool needs one non-zero quaternion per keyframe ({self.times.size}), "
+                                 f"found {q.tolist()}")
+            self.orientations = q / np.linalg.norm(q, axis=1)[:, None]
         self.contact = SurfaceContactState(SurfaceContact(np.zeros(0), faces, np.asarray(points, float), reach=reach,
                                                           sign=1.0), np.zeros((0, 3)))
         self.all_nodes = np.zeros(0, dtype=np.int64)
+        self._turned = None  # the quaternion the contact surface is turned by
+
+    def rotation(self, t: float) -> np.ndarray:
+        """The rotation matrix (tool frame to world) at ``t``."""
+        if self.orientations is None:
+            return np.eye(3)
+        return quat_matrix(orientation_at(self.times, self.orientations, t))
 
     def capsules(self, t: float) -> list[tuple]:
         return []
@@ -173,6 +191,12 @@ class MeshProbe(Probe):
             self.all_nodes = np.arange(x.shape[0], dtype=np.int64)
             c.lam_n, c.tri = np.zeros(x.shape[0]), np.zeros(x.shape[0], dtype=np.int64)
             c.bary, c.normal = np.zeros((x.shape[0], 3)), np.zeros((x.shape[0], 3))
+        if self.orientations is not None:
+            q = orientation_at(self.times, self.orientations, t)
+            if self._turned is None or not np.array_equal(q, self._turned):
+                c.xv = self.points @ quat_matrix(q).T  # turned about the path point
+                c._surface(c.xv)
+                self._turned = q
         c.spec.nodes = c.active = self.all_nodes
         c.hint = c.no_hint
         c.shift = self.position(t)

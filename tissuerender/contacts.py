@@ -44,12 +44,18 @@ def _tool_surface(path: str):
 
 
 def mesh_tool_probe(tool) -> MeshProbe:
-    """The probe of a ``kind = "mesh"`` tool: its file's closed surface (read once per file), on its keyframed path;
-    ``drawn``: the (points, triangles, normals) it is drawn with, relative to its path point."""
+    """The probe of a ``kind = "mesh"`` tool: its file's closed surface (read once per file), on its keyframed path,
+    turned by the keyframes' orientations where one gives any (a keyframe without: unturned); ``drawn``: the
+    (points, triangles, normals) it is drawn with in the tool frame (``tissuerender.render_inputs.tool_surface``
+    places them with ``probe.rotation`` and ``probe.position``)."""
     points, faces, drawn = _tool_surface(tool.mesh)
     times = np.array([k.t for k in tool.keyframes], dtype=np.float64)
     positions = np.array([k.position for k in tool.keyframes], dtype=np.float64)
-    probe = MeshProbe(points, faces, times, positions)
+    orientations = None
+    if any(k.orientation is not None for k in tool.keyframes):
+        orientations = np.array([[1.0, 0.0, 0.0, 0.0] if k.orientation is None else k.orientation
+                                 for k in tool.keyframes], dtype=np.float64)
+    probe = MeshProbe(points, faces, times, positions, orientations=orientations)
     probe.drawn = drawn
     return probe
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sim.pose import bracket, quat_matrix, slerp
 from sim.probe import Probe
 
 INSTRUMENT_KINDS = ("grasper", "l_hook")
@@ -67,33 +68,6 @@ def quat_from_axis(axis) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def quat_matrix(q) -> np.ndarray:
-    """The rotation matrix of the unit quaternion ``q`` (w, x, y, z)."""
-    w, x, y, z = q
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
-
-def slerp(q0, q1, u: float) -> np.ndarray:
-    """Spherical linear interpolation between unit quaternions along the shorter arc; ``q0`` at u = 0 and
-    ``q1`` (or ``-q1``, the same rotation) at u = 1 exactly."""
-    q0, q1 = np.asarray(q0, float), np.asarray(q1, float)
-    if u <= 0.0:
-        return q0.copy()
-    d = float(q0 @ q1)
-    if d < 0.0:
-        q1, d = -q1, -d
-    if u >= 1.0:
-        return q1.copy()
-    if d > 1.0 - 1e-12:  # nearly equal: the chord, renormalised
-        q = (1.0 - u) * q0 + u * q1
-    else:
-        th = np.arccos(d)
-        q = (np.sin((1.0 - u) * th) * q0 + np.sin(u * th) * q1) / np.sin(th)
-    return q / np.linalg.norm(q)
-
-
 def _keyframe_orientations(tool) -> np.ndarray:
     default = quat_from_axis(tool.axis)
     out = []
@@ -103,21 +77,12 @@ def _keyframe_orientations(tool) -> np.ndarray:
     return np.array(out)
 
 
-def _bracket(times: np.ndarray, t: float) -> tuple[int, int, float]:
-    if t <= times[0]:
-        return 0, 0, 0.0
-    if t >= times[-1]:
-        return len(times) - 1, len(times) - 1, 0.0
-    j = int(np.searchsorted(times, t, side="right"))
-    return j - 1, j, (t - times[j - 1]) / (times[j] - times[j - 1])
-
-
 def pose(tool, t: float) -> tuple[np.ndarray, np.ndarray, float]:
     """(position (3,), rotation matrix (3, 3) tool frame -> world, jaw opening angle [rad]) at time ``t``."""
     times = np.array([k.t for k in tool.keyframes], dtype=np.float64)
     positions = np.array([k.position for k in tool.keyframes], dtype=np.float64)
     position = np.array([np.interp(t, times, positions[:, c]) for c in range(3)])
-    i, j, u = _bracket(times, t)
+    i, j, u = bracket(times, t)
     qs = _keyframe_orientations(tool)
     q = slerp(qs[i], qs[j], u)
     jaws = np.array([DEFAULT_JAW_DEG if getattr(k, "jaw_deg", None) is None else k.jaw_deg for k in tool.keyframes])

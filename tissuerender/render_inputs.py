@@ -131,9 +131,12 @@ def tool_surface(tool, t: float):
     if tool.kind in instruments.INSTRUMENT_KINDS:
         return instruments.instrument_surface(tool, t)
     probe = make_probe(tool)
-    if tool.kind == "mesh":  # its file's triangles on the path (tissuerender.contacts.mesh_tool_probe)
+    if tool.kind == "mesh":  # its file's triangles turned and placed as they push (tissuerender.contacts.mesh_tool_probe)
         points, triangles, normals = probe.drawn
-        return points + probe.position(t), triangles, normals
+        if probe.orientations is None:
+            return points + probe.position(t), triangles, normals
+        R = probe.rotation(t)
+        return points @ R.T + probe.position(t), triangles, normals @ R.T
     centre = np.asarray(probe.position(t), dtype=np.float64)
     if tool.kind == "sphere":
         m = trimesh.creation.icosphere(subdivisions=3, radius=tool.radius)

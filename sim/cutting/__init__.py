@@ -5,9 +5,10 @@ is fed only the faces still in use. Here, likewise, a tet the blade meets is rem
 (``sim.cutting.sweep``: exact capsule–tet tests over the blade's positions in each substep), every node keeps its
 index, and the topology is brought up to date at once (``sim.cutting.topology``): the model's per-tet arrays are
 filtered, lumped masses summed again (orphan nodes get mass 0 and drop out of the solve), tets hanging on by an
-edge are removed with them (the boundary stays a closed 2-manifold), and the integrator rebuilds its constraints
-(``sim.integrators.xpbd.solver.XPBD.remove_tets``: removing tets from a graph colouring leaves it a colouring, so
-each colour is filtered, not recomputed). The render surface is then the boundary of the remaining tets, the
+edge are removed with them (the boundary stays a closed 2-manifold), and the integrator updates its constraints
+(``sim.integrators.xpbd.removal``: the removed tets stop acting at once, the per-tet data is filtered once per step;
+removing tets from a graph colouring leaves it a colouring, so each colour is filtered, not recomputed). The masses
+change at the removal, the model's per-tet arrays when the integrator commits it (:meth:`Cutter.commit`). The render surface is then the boundary of the remaining tets, the
 faces the cut exposed drawn with the body's ``cut_material`` (``tissuerender.world``; docs/interaction.md,
 "Cutting"). Not modelled: Qian's heat transfer and shrinkage of the dissected area (§5.3.2–5.3.3), splitting tets
 along the blade (virtual nodes).
@@ -19,7 +20,7 @@ import math
 import numpy as np
 
 from sim.cutting.sweep import blade_hits
-from sim.cutting.topology import Cut, CutTopology, filter_model
+from sim.cutting.topology import Cut, CutTopology, alive_tets_of, filter_model, sum_node_masses
 from sim.model import Model
 from sim.probe import Probe
 
@@ -83,6 +84,12 @@ class Cutter:
         self.cuts = [CutState(c, model.probes[c.probe]) for c in getattr(model, "cuts", ())]
         self.topology = CutTopology(model)
         self.revision = 0
+        self.model_ids = np.arange(model.n_tets)  # the original ids of the model's tets (filtered by commit)
+        self.volume = model.volume.copy()  # per original tet
+        self.node_mass = model.density * self.volume / 4.0  # its share of each of its nodes' lumped mass
+        model.mass = model.mass.copy()  # summed again in place at each removal
+        self.pending = False  # tets removed since the last commit
+        self.touched = np.zeros(0, dtype=np.int64)  # the nodes whose masses the last sweep changed
 
     def contact_probes(self, probes: list, t: float, t_next: float) -> list:
         """The probes as they push tissue over the substep ``[t, t_next]``: a tool whose cut is active there pushes
@@ -96,7 +103,9 @@ class Cutter:
 
     def sweep(self, x: np.ndarray, t: float, t_next: float) -> np.ndarray | None:
         """Remove the tets the active blades sweep through over the substep ``[t, t_next]`` at positions ``x``:
-        returns the mask (m,) of the model's tets kept (the model already filtered), None when nothing was cut."""
+        returns the original ids removed (sorted; with those of the manifold rule), None when nothing was cut. The
+        lumped masses of their nodes are summed again over the remaining tets at once (in tet order, as
+        ``filter_model`` sums them: the same values); the model keeps the tets until :meth:`commit`."""
         m = self.model
         hit = np.zeros(m.n_tets, dtype=bool)
         for cut in self.cuts:
@@ -105,10 +114,31 @@ class Cutter:
                 blade_hits(x, m.tets, *cut.samples(*window), hit)
         if not hit.any():
             return None
-        ids = self.topology.ids()
-        removed = self.topology.remove(ids[hit])
-        keep = ~np.isin(ids, removed)
-        self.topology.removed_volume += float(m.volume[~keep].sum())
-        filter_model(m, keep)
+        removed = self.topology.remove(self.model_ids[hit])  # the tets removed before and not yet committed: dropped
+        if not removed.size:
+            return None
+        self.topology.removed_volume += float(self.volume[removed].sum())
+        top = self.topology
+        self.touched = np.unique(top.tets[removed])  # the nodes whose masses change
+        sum_node_masses(self.touched, top.node_start, top.node_tets, top.alive, self.node_mass, m.mass)
         self.revision += 1
+        self.pending = True
+        return removed
+
+    def touched_tets(self) -> np.ndarray:
+        """The original ids of the remaining tets around the nodes the last :meth:`sweep` changed the masses of."""
+        top = self.topology
+        mark = np.zeros(top.alive.size, dtype=bool)
+        alive_tets_of(self.touched, top.node_start, top.node_tets, top.alive, mark)
+        return np.flatnonzero(mark)
+
+    def commit(self) -> np.ndarray | None:
+        """Filter the model's per-tet arrays to the remaining tets (``filter_model``): returns the mask (m,) of its
+        previous tets kept, None when none was removed since the last commit."""
+        if not self.pending:
+            return None
+        keep = self.topology.alive[self.model_ids]
+        self.model_ids = self.model_ids[keep]
+        filter_model(self.model, keep)
+        self.pending = False
         return keep

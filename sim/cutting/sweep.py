@@ -181,10 +181,23 @@ def blade_hits(x, tets, seg_a, seg_b, radius, hit):
     for c in range(3):
         all_lo[c] = lo[:, c].min()
         all_hi[c] = hi[:, c].max()
+    # per node, on which sides of the box around every sample it lies (bit 2c: below it along axis c, bit 2c + 1:
+    # above): a tet whose four nodes share a bit misses the box, the box test below without reading its corners
+    side = np.zeros(x.shape[0], dtype=np.uint8)
+    for i in range(x.shape[0]):
+        bits = 0
+        for c in range(3):
+            if x[i, c] < all_lo[c]:
+                bits |= 1 << (2 * c)
+            elif x[i, c] > all_hi[c]:
+                bits |= 2 << (2 * c)
+        side[i] = bits
     corners = np.empty((4, 3))
     t_lo = np.empty(3)
     t_hi = np.empty(3)
     for t in range(tets.shape[0]):
+        if side[tets[t, 0]] & side[tets[t, 1]] & side[tets[t, 2]] & side[tets[t, 3]]:
+            continue
         for c in range(3):
             t_lo[c] = np.inf
             t_hi[c] = -np.inf
@@ -194,9 +207,6 @@ def blade_hits(x, tets, seg_a, seg_b, radius, hit):
                 corners[v, c] = value
                 t_lo[c] = min(t_lo[c], value)
                 t_hi[c] = max(t_hi[c], value)
-        if (t_hi[0] < all_lo[0] or t_lo[0] > all_hi[0] or t_hi[1] < all_lo[1] or t_lo[1] > all_hi[1]
-                or t_hi[2] < all_lo[2] or t_lo[2] > all_hi[2]):
-            continue
         # the tet's bounding sphere (centre c, radius R): a capsule farther than R + r from c misses it
         c0 = 0.25 * (corners[0, 0] + corners[1, 0] + corners[2, 0] + corners[3, 0])
         c1 = 0.25 * (corners[0, 1] + corners[1, 1] + corners[2, 1] + corners[3, 1])

@@ -112,15 +112,40 @@ def boundary_of(tets: np.ndarray, n_nodes: int) -> tuple[np.ndarray, np.ndarray]
 def filter_model(model: Model, keep: np.ndarray) -> None:
     """Keep only the tets ``keep`` (m,) bool of ``model`` (in place): rest shape, volumes, per-tet material fields
     and fibres filtered, lumped masses ``rho V / 4`` summed again over the remaining tets (0 on orphan nodes)."""
-    model.tets = np.ascontiguousarray(model.tets[keep])
-    model.Dm_inv = np.ascontiguousarray(model.Dm_inv[keep])
-    model.volume = model.volume[keep]
-    model.E, model.nu, model.mu, model.lam = model.E[keep], model.nu[keep], model.mu[keep], model.lam[keep]
+    keep = np.flatnonzero(keep)
+    take = lambda a: np.take(a, keep, axis=0)  # noqa: E731 (many times faster than a[keep] for 2-d and 3-d arrays)
+    model.tets, model.Dm_inv, model.volume = take(model.tets), take(model.Dm_inv), take(model.volume)
+    model.E, model.nu, model.mu, model.lam = take(model.E), take(model.nu), take(model.mu), take(model.lam)
     if model.fibre is not None:
-        model.fibre = np.ascontiguousarray(model.fibre[keep])
-    mass = np.zeros(model.n_nodes)
-    np.add.at(mass, model.tets.ravel(), np.repeat(model.density * model.volume / 4.0, 4))
-    model.mass = mass
+        model.fibre = take(model.fibre)
+    # summed in tet order as np.add.at would (bincount adds its weights in order): a node none of whose tets went
+    # keeps its mass to the bit
+    model.mass = np.bincount(model.tets.ravel(), np.repeat(model.density * model.volume / 4.0, 4),
+                             minlength=model.n_nodes)
+
+
+@njit(cache=True)
+def sum_node_masses(nodes, node_start, node_tets, alive, node_mass, mass):
+    """``mass[i]`` for each of ``nodes``: the sum of ``node_mass[t]`` over its ``alive`` tets in increasing id (the
+    order in which ``filter_model``'s bincount adds them, starting from 0: the same value to the bit)."""
+    for i in nodes:
+        total = 0.0
+        for p in range(node_start[i], node_start[i + 1]):
+            t = node_tets[p]
+            if alive[t]:
+                total += node_mass[t]
+        mass[i] = total
+
+
+@njit(cache=True)
+def alive_tets_of(nodes, node_start, node_tets, alive, mark):
+    """Set ``mark[t]`` for every ``alive`` tet t of one of ``nodes`` (the tets whose nodes' masses a removal
+    changed)."""
+    for i in nodes:
+        for p in range(node_start[i], node_start[i + 1]):
+            t = node_tets[p]
+            if alive[t]:
+                mark[t] = True
 
 
 class CutTopology:
@@ -154,7 +179,9 @@ class CutTopology:
         self.alive[ids] = False
         work = ids
         while work.size:
-            edges = np.unique(np.sort(self.tets[work][:, _EDGES].reshape(-1, 2), axis=1), axis=0)
+            edges = np.sort(self.tets[work][:, _EDGES].reshape(-1, 2), axis=1)
+            key = np.unique(edges[:, 0] * self.n_nodes + edges[:, 1])  # one int64 per edge (n < 2**21 nodes)
+            edges = np.stack([key // self.n_nodes, key % self.n_nodes], axis=1)
             drop = np.zeros(self.alive.size, dtype=np.bool_)
             split_fans(edges, self.tets, self.alive, self.node_start, self.node_tets, drop)
             work = np.flatnonzero(drop & self.alive)

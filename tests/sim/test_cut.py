@@ -12,6 +12,8 @@ from sim.contact import Grasp
 from sim.cutting import Cut
 from sim.cutting.surface import cut_surfaces
 from sim.cutting.sweep import capsule_meets_tet
+from sim.integrators.xpbd import blocked
+from sim.integrators.xpbd.removal import TetRemoval
 from sim.integrators.xpbd.solver import XPBD
 from sim.mesh import procedural
 from sim.model import Model, State, rest_shape
@@ -20,10 +22,11 @@ from sim.probe import Probe
 LENGTH, SIDE = 0.2, 0.04
 
 
-def _cut_bar(gravity=(0.0, 0.0, 0.0), steps=8, grasp=False):
+def _cut_bar(gravity=(0.0, 0.0, 0.0), steps=8, grasp=False, prony=False):
     """A 20 x 4 x 4 cm bar (10 x 2 x 2 cells, 240 tets) clamped at both ends, cut through at x = 0.101 m by a
     capsule blade (radius 2 mm, along y, longer than the bar is wide) moving down through it in 0.08 s; with
-    ``grasp``, a still sphere (radius 0.1 mm) holds the nodes within 2.1 cm of the bar's centre from t = 0."""
+    ``grasp``, a still sphere (radius 0.1 mm) holds the nodes within 2.1 cm of the bar's centre from t = 0; with
+    ``prony``, one Prony term (a = 0.3, tau = 0.05 s: a constraint set of its own, packed anew after every step)."""
     mesh = procedural.box((LENGTH, SIDE, SIDE), (10, 2, 2))
     model = Model.from_mesh(mesh, E=1e5, nu=0.4, density=1000.0, gravity=np.asarray(gravity, dtype=np.float64))
     model.fixed[(mesh.points[:, 0] < 1e-9) | (mesh.points[:, 0] > LENGTH - 1e-9)] = True
@@ -34,6 +37,8 @@ def _cut_bar(gravity=(0.0, 0.0, 0.0), steps=8, grasp=False):
     if grasp:
         model.probes.append(Probe(kind="sphere", radius=1e-4, times=[0.0], positions=[[0.1, 0.02, 0.02]]))
         model.grasps = [Grasp(probe=1, t_close=0.0, t_release=10.0, radius=0.021)]
+    if prony:
+        model.material_params = dict(model.material_params, prony=[(0.3, 0.05)])
     original = Model.from_mesh(mesh, E=1e5, nu=0.4, density=1000.0)
     integrator = XPBD(model, {"substeps": 5, "iterations": 5})
     state = State.at_rest(model)
@@ -103,6 +108,27 @@ def test_no_tet_inverts_after_the_cut_and_under_gravity_after_it():
     assert state.x[:, 2][np.unique(model.tets)].min() < -1e-4
     orphans = np.setdiff1d(np.arange(model.n_nodes), model.tets)
     assert np.all(state.v[orphans] == 0.0)
+
+
+@pytest.mark.parametrize("prony", [False, True])
+def test_removed_tets_left_inert_in_the_blocks_give_the_positions_of_blocks_packed_anew(monkeypatch, prony):
+    # a removal leaves a removed tet's lane in the blocked kernel's blocks with every parameter zero (its correction
+    # is then exactly 0.0) and rewrites only the mass rows of the tets around it (sim.integrators.xpbd.removal);
+    # packing the blocks anew at the end of every step with a removal (repack_fraction 0) is the reference. Same
+    # tets, same order within each colour, same per-lane arithmetic: the positions must agree to the bit after the
+    # cut and 0.2 s under gravity. A Prony branch's set is packed anew after every step (its rest shape drifts): its
+    # removed lanes are found in its own layout.
+    runs = {}
+    for fraction in (0.0, np.inf):
+        monkeypatch.setattr(TetRemoval, "repack_fraction", fraction)
+        _, _, model, integrator, state = _cut_bar(gravity=(0.0, 0.0, -9.81), steps=20, prony=prony)
+        runs[fraction] = (state.x, integrator)
+    removal = runs[np.inf][1].removal
+    assert removal.inert[0] == 48 and runs[0.0][1].removal.inert[0] == 0
+    params = runs[np.inf][1].blocks[1].reshape(-1, blocked.N_ROWS, blocked.LANES)
+    dead = np.setdiff1d(np.arange(params.shape[0] * blocked.LANES), removal.slots[0])  # removed tets' and padding
+    assert np.all(params[dead // blocked.LANES, :, dead % blocked.LANES] == 0.0)
+    np.testing.assert_array_equal(runs[np.inf][0], runs[0.0][0])
 
 
 def test_grasped_nodes_the_cut_leaves_in_no_tet_let_go():

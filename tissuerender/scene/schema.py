@@ -6,6 +6,7 @@ keys for users; ``tests/test_scene_docs.py`` checks that the two agree.
 """
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
@@ -222,10 +223,19 @@ class Keyframe(Strict):
     t: Annotated[float, Field(ge=0.0, le=1e6, description="time [s]")]
     position: Annotated[Vec3, Field(description="the tool's position at t [m] (an instrument's: its tip joint)")]
     orientation: Annotated[list[float], Field(min_length=4, max_length=4)] | None = Field(None, description=(
-        "grasper / l_hook: unit quaternion (w, x, y, z) taking the tool frame (+z towards the tip) to the world, "
-        "slerped between keyframes (normalised; default: +z turned onto axis); docs/interaction.md, \"Instruments\""))
+        "grasper / l_hook / mesh: unit quaternion (w, x, y, z) taking the tool frame (an instrument's +z towards the "
+        "tip; a mesh tool's file coordinates) to the world, slerped between keyframes (normalised; default: an "
+        "instrument's +z turned onto axis, a mesh tool unturned); docs/interaction.md, \"Instruments\", \"Mesh tools\""))
     jaw_deg: Annotated[float, Field(ge=0.0, le=90.0)] | None = Field(None, description=(
         "grasper: jaw opening angle [deg], linear between keyframes (default 30)"))
+
+
+def _turns(keyframes) -> bool:
+    """Whether the orientations of ``keyframes`` (None: unturned) are not all one rotation (q and -q are one)."""
+    qs = [(1.0, 0.0, 0.0, 0.0) if k.orientation is None else tuple(k.orientation) for k in keyframes]
+    unit = [[c / math.sqrt(sum(v * v for v in q)) for c in q] for q in qs]
+    # one rotation: |q0 . q| = 1 up to the rounding of normalising and of the sum (a few ulps)
+    return any(abs(sum(a * b for a, b in zip(unit[0], q))) < 1.0 - 1e-12 for q in unit[1:])
 
 
 class Tool(Strict):
@@ -237,7 +247,7 @@ class Tool(Strict):
         "probe radius [m] (required, except for a mesh)"))
     mesh: str | None = Field(None, description=(
         "kind = \"mesh\": a closed, outward-wound triangle mesh (.obj, .ply, .stl) relative to the scene, its "
-        "coordinates [m] relative to the keyframed position"))
+        "coordinates [m] relative to the keyframed position, turned by the keyframes' orientation"))
     length: Annotated[float, Field(ge=0.0, le=10.0, description=(
         "capsule segment length [m] (> 0 for a capsule); an instrument's shaft length behind its tip (> 0)"))] = 0.0
     axis: Vec3 = Field([0.0, 0.0, 1.0], description=(
@@ -265,6 +275,10 @@ class Tool(Strict):
             raise ValueError("a mesh tool cannot cut: a blade is a sphere, a capsule or an instrument's jaws or hook")
         if self.kind == "mesh" and any(g.radius is None for g in self.grasp):
             raise ValueError("a mesh tool's grasp needs its own radius (the default is 1.5 tool radii)")
+        if self.kind == "mesh" and self.grasp and _turns(self.keyframes):
+            raise ValueError("a mesh tool whose orientation changes between keyframes cannot grasp: grasped nodes "
+                             "keep their offset from the path point and would not turn with the tool; give every "
+                             "keyframe the same orientation or none")
         for k in self.keyframes:
             if k.orientation is not None and sum(c * c for c in k.orientation) < 1e-12:
                 raise ValueError(f"keyframe t = {k.t}: orientation must be a non-zero quaternion, found {k.orientation}")

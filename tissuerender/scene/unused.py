@@ -122,8 +122,9 @@ def _tools(scene):
         instrument = tool.kind in ("grasper", "l_hook")
         for j, k in enumerate(tool.keyframes):
             for name in ("orientation", "jaw_deg"):
-                if name in _set(k) and not (instrument if name == "orientation" else tool.kind == "grasper"):
-                    owner = "an instrument" if name == "orientation" else "a grasper"
+                turns = instrument or tool.kind == "mesh"
+                if name in _set(k) and not (turns if name == "orientation" else tool.kind == "grasper"):
+                    owner = "an instrument or a mesh tool" if name == "orientation" else "a grasper"
                     return f"tools[{i}].keyframes[{j}].{name}", (
                         f"a tool of kind {tool.kind!r} has no {name} (only {owner}); remove it")
         if instrument and "axis" in given and all(k.orientation is not None for k in tool.keyframes):

@@ -45,28 +45,39 @@ N_SCRATCH = 21
 MIN_BLOCKS_PER_THREAD = 4  # colours with fewer blocks per thread run serially (a parallel launch costs more)
 
 
-def pack_blocks(tets, Dm_inv, w, alpha_dev, alpha_hyd, gamma, colour_start):
-    """Block layout of per-tet data stored in colour order: each colour padded to whole blocks of
-    ``LANES`` tets. Returns ``(node_index (nb, 4 LANES) int32, params (nb, N_ROWS LANES) float64,
-    lanes_used (nb,) int64, colour_block (n_colours + 1,) int64)``; padding lanes have zero B, w and M,
-    so their correction is zero, and are neither gathered nor scattered."""
+def colour_slots(colour_start):
+    """Where each tet (in colour order, colours ``colour_start``) sits in the block layout: ``(colour_block
+    (n_colours + 1,) int64, slot (m,) int64)``, colour c in blocks ``colour_block[c]:colour_block[c + 1]``, tet k in
+    block ``slot[k] // LANES``, lane ``slot[k] % LANES`` (each colour padded to whole blocks)."""
     sizes = np.diff(colour_start)
     blocks_per_colour = (sizes + LANES - 1) // LANES
     colour_block = np.concatenate([[0], np.cumsum(blocks_per_colour)]).astype(np.int64)
-    n_blocks = int(colour_block[-1])
-    # slot of each tet in the padded sequence
     slot = np.concatenate([colour_block[c] * LANES + np.arange(sizes[c]) for c in range(sizes.size)]
                           ).astype(np.int64) if sizes.size else np.zeros(0, np.int64)
+    return colour_block, slot
+
+
+def _mass_rows(Dm_inv, wk):
+    """M = sum_k w_k b_k b_k^T (m, 6) as (M00, M01, M02, M11, M12, M22), b_0 = -(b_1 + b_2 + b_3)."""
+    b_all = np.concatenate([-Dm_inv.sum(axis=1, keepdims=True), Dm_inv], axis=1)  # (m, 4, 3): b_0..b_3
+    M = np.einsum("mk,mki,mkj->mij", wk, b_all, b_all)
+    return M[:, [0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]]
+
+
+def pack_blocks(tets, Dm_inv, w, alpha_dev, alpha_hyd, gamma, colour_start):
+    """Block layout of per-tet data stored in colour order: each colour padded to whole blocks of
+    ``LANES`` tets (:func:`colour_slots`). Returns ``(node_index (nb, 4 LANES) int32, params (nb, N_ROWS LANES)
+    float64, lanes_used (nb,) int64, colour_block (n_colours + 1,) int64)``; padding lanes have zero B, w and M,
+    so their correction is zero, and are neither gathered nor scattered."""
+    colour_block, slot = colour_slots(colour_start)
+    n_blocks = int(colour_block[-1])
     blk, lane = slot // LANES, slot % LANES
     node_index = np.zeros((n_blocks, 4, LANES), np.uint32)
     node_index[blk, :, lane] = 3 * tets
     params = np.zeros((n_blocks, N_ROWS, LANES))
-    b = Dm_inv  # b_k[c] = Dm_inv[k - 1, c]
-    params[blk, ROW_B:ROW_B + 9, lane] = b.reshape(-1, 9)
-    b_all = np.concatenate([-b.sum(axis=1, keepdims=True), b], axis=1)  # (m, 4, 3): b_0..b_3
+    params[blk, ROW_B:ROW_B + 9, lane] = Dm_inv.reshape(-1, 9)  # b_k[c] = Dm_inv[k - 1, c]
     wk = w[tets]  # (m, 4)
-    M = np.einsum("mk,mki,mkj->mij", wk, b_all, b_all)
-    params[blk, ROW_M:ROW_M + 6, lane] = M[:, [0, 0, 0, 1, 1, 2], [0, 1, 2, 1, 2, 2]]
+    params[blk, ROW_M:ROW_M + 6, lane] = _mass_rows(Dm_inv, wk)
     params[blk, ROW_W:ROW_W + 4, lane] = wk
     params[blk, ROW_ALPHA_DEV, lane] = alpha_dev
     params[blk, ROW_ALPHA_HYD, lane] = alpha_hyd
@@ -75,6 +86,25 @@ def pack_blocks(tets, Dm_inv, w, alpha_dev, alpha_hyd, gamma, colour_start):
     np.add.at(lanes_used, blk, 1)
     return (node_index.reshape(n_blocks, 4 * LANES), params.reshape(n_blocks, N_ROWS * LANES), lanes_used,
             colour_block)
+
+
+def make_inert(params, slots):
+    """Zero every parameter of the lanes ``slots`` (a removed tet's, ``XPBD.remove_tets``): with B = 0 the lane's
+    F is 0, its projection takes the degenerate branch (|F| < 1e-12: d1 = d2 = 0) and its node corrections
+    w_k K b_k are exactly zero, so the lane moves nothing (x += 0.0) while keeping its place in the block."""
+    p = params.reshape(params.shape[0], N_ROWS, LANES)
+    p[slots // LANES, :, slots % LANES] = 0.0
+
+
+def set_inverse_masses(params, slots, tets, Dm_inv, w):
+    """Rewrite the rows w_k and M of the tets at ``slots`` (their node ids ``tets``, rest matrices ``Dm_inv``) from
+    the inverse masses ``w``: after a removal changed the lumped masses of their nodes. The same arithmetic as
+    :func:`pack_blocks`, so the rows equal a fresh packing's."""
+    p = params.reshape(params.shape[0], N_ROWS, LANES)
+    blk, lane = slots // LANES, slots % LANES
+    wk = w[tets]
+    p[blk, ROW_M:ROW_M + 6, lane] = _mass_rows(Dm_inv, wk)
+    p[blk, ROW_W:ROW_W + 4, lane] = wk
 
 
 @njit(cache=True)

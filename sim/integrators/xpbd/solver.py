@@ -19,8 +19,9 @@ sweeps), then the nodes held in some components only are projected back onto the
 exerted on each probe over the last step (minus the contact impulses over the step, ``sim.probe``). The ``jacobi`` solver averages the corrections of all
 tets per iteration (with relaxation) instead.
 
-Cuts (``sim.cutting``): at the start of a substep the tets an active blade sweeps through are removed and the
-per-tet data rebuilt on the rest (:meth:`XPBD.remove_tets`); a cutting tool's blade pushes no tissue.
+Cuts (``sim.cutting``): at the start of a substep the tets an active blade sweeps through are removed: their
+constraints stop acting at once, and the per-tet data is filtered at the end of the step
+(``sim.integrators.xpbd.removal``); a cutting tool's blade pushes no tissue.
 
 Strain limits on Green-strain entries in a material frame (Qian 4.21–4.22, stretch and shear,
 unilateral or held) are projected after every sweep (``sim.integrators.xpbd.strain``). Prony viscoelasticity
@@ -38,6 +39,7 @@ from sim.integrators.xpbd import blocked, kernels
 from sim.integrators.xpbd.colouring import colour_tets, split_into_domains
 from sim.integrators.xpbd.energy import EnergyConstraints
 from sim.integrators.xpbd.prony import MaxwellBranches
+from sim.integrators.xpbd.removal import TetRemoval
 from sim.integrators.xpbd.settings import XPBDSettings, limit_boxes
 from sim.integrators.xpbd.strain import GreenStrainLimits
 from sim.contact import GraspState, PlaneState
@@ -165,6 +167,7 @@ class XPBD:
         self.contact_pairs = max((c.pair + 1 for c in getattr(m, "contacts", ())), default=0)
         # cuts (sim.cutting), an optional attribute of the model: tets removed at the start of a substep
         self.cutter = Cutter(m) if getattr(m, "cuts", ()) else None
+        self.removal = TetRemoval(self) if self.cutter is not None else None
 
     def _build_tets(self, order: np.ndarray, colour_start: np.ndarray) -> None:
         """Everything per tet or per mass, from the model's tets in colour order ``order`` (ranges ``colour_start``)."""
@@ -172,7 +175,7 @@ class XPBD:
         self.tet_order = order
         self.colour_start = colour_start
         self.tets = np.ascontiguousarray(m.tets[order], dtype=np.int64)
-        self.w = m.inverse_mass()
+        self._per_node()
         # constraint sets: the body's tets (long-term weight 1 - sum a_i with Prony terms), then one
         # set per Prony branch (sim.integrators.xpbd.prony)
         self.sets = [TetConstraints(self, weight_B[1], weight_B[0]) for weight_B in (
@@ -189,28 +192,17 @@ class XPBD:
                 np.stack([np.einsum("mij,mj->mi", m.Dm_inv, a) for a in axes], axis=1)[order])
         self.green_limits = (GreenStrainLimits(m, order, self.colour_start, settings)
                              if limit_boxes(settings) is not None else None)
-        counts = np.bincount(self.tets.ravel(), minlength=m.n_nodes).astype(np.float64)
-        self.tet_scale = self.relaxation / counts[self.tets].max(axis=1) if self.tets.size else np.zeros(0)
-        self.f_ext_acc = m.nodal_external_force() * np.where(self.w > 0, self.w, 0.0)[:, None]
 
-    def remove_tets(self, keep: np.ndarray) -> None:
-        """The model has just kept only its tets ``keep`` (mask over its previous tets, ``sim.cutting``): filter
-        the colour order (a colouring stays one when tets are removed, so no recolouring; the domains' interiors
-        still share no node), the Prony branches' state, and rebuild the per-tet constraints and inverse masses."""
-        new_id = np.cumsum(keep) - 1
-        kept = keep[self.tet_order]  # per colour-order position
-        colour = np.repeat(np.arange(self.colour_start.size - 1), np.diff(self.colour_start))
-        counts = np.bincount(colour[kept], minlength=self.colour_start.size - 1)
-        colour_start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-        order = new_id[self.tet_order[kept]].astype(np.int64)
-        if self.branches is not None:
-            self.branches.tets = np.ascontiguousarray(self.model.tets[order], dtype=np.int64)
-            self.branches.Dm_inv = np.ascontiguousarray(self.model.Dm_inv[order])
-            self.branches.Fv = np.ascontiguousarray(self.branches.Fv[:, kept])
-        self._build_tets(order, colour_start)
-        for grasp in self.grasps:  # a grasped node left in no tet has no mass to hold: it lets go
-            if grasp.nodes.size:
-                grasp.detach(self.w[grasp.nodes] == 0.0)
+    def _per_node(self) -> None:
+        """Inverse masses, the external-force accelerations and (``solver = "jacobi"``) the per-tet relaxation, from
+        the model's masses and the tets in colour order (again after a cut, ``sim.integrators.xpbd.removal``)."""
+        m = self.model
+        self.w = m.inverse_mass()
+        self.tet_scale = np.zeros(0)
+        if self.solver == "jacobi" and self.tets.size:
+            counts = np.bincount(self.tets.ravel(), minlength=m.n_nodes).astype(np.float64)
+            self.tet_scale = self.relaxation / counts[self.tets].max(axis=1)
+        self.f_ext_acc = m.nodal_external_force() * np.where(self.w > 0, self.w, 0.0)[:, None]
 
     def step(self, state: State, dt: float) -> State:
         m = self.model
@@ -231,9 +223,9 @@ class XPBD:
         for _ in range(self.substeps):
             t_next = t + h
             if self.cutter is not None:  # the blades remove the tets they sweep through over this substep
-                keep = self.cutter.sweep(x, t, t_next)
-                if keep is not None:
-                    self.remove_tets(keep)
+                removed = self.cutter.sweep(x, t, t_next)
+                if removed is not None:
+                    self.removal.remove(removed)
                     v[self.model.mass == 0.0] = 0.0  # orphan nodes (in no tet) stay where they are
             x_prev = x.copy()
             x += h * v + h * h * self.f_ext_acc
@@ -289,6 +281,8 @@ class XPBD:
             if self.damping > 0.0:
                 v *= np.exp(-self.damping * h)
             t = t_next
+        if self.removal is not None:  # the step's removals filtered out of the per-tet data
+            self.removal.compact()
         if not np.isfinite(x).all():
             raise SimulationDiverged(f"xpbd: non-finite positions at t = {t:.6g} s")
         # the force and torque the tissue exerts on each tool, averaged over the step: minus the contact impulses
