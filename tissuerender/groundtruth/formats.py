@@ -138,9 +138,16 @@ def encode_depth_png(depth: np.ndarray, scale: float) -> np.ndarray:
     return units
 
 
+# zlib level of the PNGs written per frame (depth, KITTI flow): level 1 writes a 640x480 frame's PNG several
+# times faster than the default 6 for about 1.5 to 2 times the bytes; every reader decodes any level
+# (docs/ground-truth.md, "Cost")
+PNG_ZLIB_LEVEL = 1
+
+
 def write_depth_png(path: Path, depth: np.ndarray, scale: float) -> None:
     units = encode_depth_png(depth, scale)
-    write_atomic(path, lambda tmp: Image.fromarray(units).save(tmp, format="PNG"))  # uint16: Pillow mode I;16
+    write_atomic(path, lambda tmp: Image.fromarray(units).save(tmp, format="PNG",  # uint16: Pillow mode I;16
+                                                               compress_level=PNG_ZLIB_LEVEL))
 
 
 # --- optical flow: Middlebury .flo and KITTI PNG --------------------------------------------------------------
@@ -165,12 +172,12 @@ def write_flo(path: Path, flow: np.ndarray) -> None:
 def encode_kitti_flow(flow: np.ndarray) -> np.ndarray:
     """(H, W, 3) uint16: ``u * 64 + 2^15``, ``v * 64 + 2^15`` rounded, and 1 where the flow is valid: finite
     and representable (``-512 <= u, v < 512``); invalid pixels are (0, 0, 0)."""
-    flow = _check_flow(flow).astype(float)
-    coded = np.rint(flow * KITTI_SCALE + KITTI_OFFSET)
-    valid = (np.isfinite(coded) & (coded >= 0) & (coded <= 65535)).all(axis=2)
+    flow = _check_flow(flow)
+    coded = np.rint(flow.astype(float) * KITTI_SCALE + KITTI_OFFSET)
+    valid = ((coded >= 0) & (coded <= 65535)).all(axis=2)  # NaN fails both comparisons
     out = np.zeros(flow.shape[:2] + (3,), np.uint16)
-    out[valid, :2] = coded[valid]
-    out[valid, 2] = 1
+    np.copyto(out[..., :2], coded, casting="unsafe", where=valid[..., None])
+    out[..., 2] = valid
     return out
 
 
@@ -189,6 +196,8 @@ def encode_png16_rgb(rgb: np.ndarray) -> bytes:
     h, w = rgb.shape[:2]
     codec = av.CodecContext.create("png", "w")
     codec.width, codec.height, codec.pix_fmt = w, h, "rgb48be"
+    # FFmpeg's png encoder options: zlib level PNG_ZLIB_LEVEL, each row filtered by its left neighbour's difference
+    codec.options = {"compression_level": str(PNG_ZLIB_LEVEL), "pred": "sub"}
     frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb, np.uint16), format="rgb48le")
     packets = list(codec.encode(frame.reformat(format="rgb48be"))) + list(codec.encode(None))
     return b"".join(bytes(p) for p in packets)
