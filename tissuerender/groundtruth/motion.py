@@ -50,7 +50,7 @@ import numpy as np
 
 from tissuerender.groundtruth.cameras import intrinsics, world_to_camera
 from tissuerender.groundtruth.lens import FisheyeLens, fisheye_lens
-from tissuerender.groundtruth.motion_kernels import point_motion, visible_gradient
+from tissuerender.groundtruth.motion_kernels import pixel_motion, point_motion, triangle_gradients
 from tissuerender.renderer.camera import Camera
 from tissuerender.renderer.gbuffer import RenderSurface, clip_near, rasterise
 
@@ -180,8 +180,9 @@ def frame_raster(geom: Geometry, targets=()) -> FrameRaster:
     surface, raster = rasterise(_surface(geom, attributes), view, 1, False, 0)
     pose = np.ascontiguousarray(world_to_camera(view)[:3, :])
     K_view = intrinsics(view)
-    grad_w = np.empty(raster.depth.shape)
-    visible_gradient(raster.tri_id, surface.triangles, surface.points, pose, np.linalg.inv(K_view), grad_w)
+    grad_tri = np.empty(surface.triangles.shape[0])
+    triangle_gradients(surface.triangles, surface.points, pose, np.linalg.inv(K_view), grad_tri)
+    grad_w = np.where(raster.tri_id >= 0, grad_tri[raster.tri_id], 0.0)
     tri_id, bary = raster.tri_id, raster.bary
     if lens is None:
         K, lens_k, map_col, map_row = K_view, np.zeros(4), _NO_MAP, _NO_MAP
@@ -194,16 +195,32 @@ def frame_raster(geom: Geometry, targets=()) -> FrameRaster:
                        np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]), lens_k, K_view, map_col, map_row)
 
 
-def carried_through_cut(source: FrameRaster, points: np.ndarray) -> np.ndarray:
+def carried_through_cut(source: FrameRaster, points: np.ndarray, corners: np.ndarray | None = None) -> np.ndarray:
     """Vertex positions ``points`` (n, 3) of another frame on ``source``'s clipped surface (m, 3) float64: the
-    cut vertices interpolated along their edges as ``clip_near`` interpolates ``source.carried``."""
+    cut vertices interpolated along their edges as ``clip_near`` interpolates ``source.carried``. When the only
+    vertices read are ``corners`` (clipped vertex ids) and none of them is a cut vertex, the cut vertices are
+    left NaN instead (no cut to redo)."""
     points = np.asarray(points, float)
-    if source.points.shape[0] == points.shape[0]:  # nothing was cut
+    n, m = points.shape[0], source.points.shape[0]
+    if m == n:  # nothing was cut
         return points
+    if corners is not None and (corners.size == 0 or corners.max() < n):
+        return np.concatenate([points, np.full((m - n, 3), np.nan)])
     geom = source.geometry
-    n = points.shape[0]
     return clip_near(np.asarray(geom.points, float), np.zeros((n, 3)), points,
                      np.asarray(geom.triangles, np.int64), np.asarray(geom.tri_object, np.int64), source.view)[2]
+
+
+def _target_arguments(source: FrameRaster, triangles: np.ndarray, points2: np.ndarray, target: FrameRaster) -> tuple:
+    """The arguments of ``motion_kernels.point_motion`` / ``pixel_motion`` from ``pose`` to ``grad_A``: both
+    cameras, ``target``'s visible surface and the inverse-depth gradient of ``triangles`` (of ``source``'s
+    clipped surface) at ``target``'s vertex positions ``points2`` (in ``target``'s raster)."""
+    camera = target.geometry.camera
+    grad_A = np.empty(triangles.shape[0])
+    triangle_gradients(triangles, points2, target.pose, np.linalg.inv(target.K_view), grad_A)
+    return (source.pose, source.fx_fy_cx_cy, source.lens_k, source.lens is not None, target.pose,
+            target.fx_fy_cx_cy, target.lens_k, target.lens is not None, float(camera.near), float(camera.far),
+            target.K_view, target.depth, target.grad_w, target.map_col, target.map_row, grad_A)
 
 
 def points_motion(source: FrameRaster, tri: np.ndarray, bary: np.ndarray, points2: np.ndarray,
@@ -215,29 +232,23 @@ def points_motion(source: FrameRaster, tri: np.ndarray, bary: np.ndarray, points
     k = tri.shape[0]
     uv, uv2, X, X2 = np.empty((k, 2)), np.empty((k, 2)), np.empty((k, 3)), np.empty((k, 3))
     occluded = np.zeros(k, bool)
-    cam2 = target.geometry.camera
-    point_motion(np.ascontiguousarray(tri, np.int64), np.ascontiguousarray(bary, float), source.triangles,
-                 source.points, np.ascontiguousarray(points2, float), source.pose, source.fx_fy_cx_cy,
-                 source.lens_k, source.lens is not None, target.pose, target.fx_fy_cx_cy, target.lens_k,
-                 target.lens is not None, float(cam2.near), float(cam2.far), target.K_view,
-                 np.linalg.inv(target.K_view), target.depth, target.grad_w, target.map_col, target.map_row,
-                 uv, uv2, X, X2, occluded)
+    points2 = np.ascontiguousarray(points2, float)
+    triangles = source.triangles[np.asarray(tri, np.int64)]  # point i on triangle i: gradients of these only
+    point_motion(np.arange(k, dtype=np.int64), np.ascontiguousarray(bary, float), triangles, source.points, points2,
+                 *_target_arguments(source, triangles, points2, target), uv, uv2, X, X2, occluded)
     return uv, uv2, X, X2, occluded
 
 
 def motion_to(source: FrameRaster, j: int, target: FrameRaster) -> tuple:
     """(flow, occluded, scene_flow) of ``source``'s pixels to ``target``'s frame, whose vertex positions
     ``source`` carries as its ``j``-th target (see :func:`flow_between`)."""
-    covered = source.covered
-    h, w = covered.shape
-    uv, uv2, X, X2, occ = points_motion(source, source.tri_id[covered], source.bary[covered],
-                                        source.carried[:, 3 * j:3 * j + 3], target)
-    flow = np.full((h, w, 2), np.nan, np.float32)
-    scene_flow = np.full((h, w, 3), np.nan, np.float32)
-    occluded = np.zeros((h, w), bool)
-    flow[covered] = uv2 - uv
-    scene_flow[covered] = X2 - X
-    occluded[covered] = occ
+    h, w = source.tri_id.shape
+    flow = np.empty((h, w, 2), np.float32)
+    scene_flow = np.empty((h, w, 3), np.float32)
+    occluded = np.empty((h, w), bool)
+    points2 = np.ascontiguousarray(source.carried[:, 3 * j:3 * j + 3])
+    pixel_motion(source.tri_id, source.bary, source.triangles, source.points, points2,
+                 *_target_arguments(source, source.triangles, points2, target), flow, scene_flow, occluded)
     return flow, occluded, scene_flow
 
 

@@ -64,69 +64,108 @@ def _inverse_depth_gradient(pose, K_inv, p, q, s):
 
 
 @njit(cache=True, parallel=True)
-def visible_gradient(tri_id, triangles, points, pose, K_inv, grad_w):
-    """``grad_w`` (H, W) = |grad 1/z| of the triangle ``tri_id`` (H, W) sees at each pixel (0 where it is -1);
-    ``triangles`` (t, 3) into ``points`` (n, 3) [m, world], ``K_inv`` the raster's inverse intrinsics."""
+def triangle_gradients(triangles, points, pose, K_inv, grad):
+    """``grad`` (t,) = ``_inverse_depth_gradient`` of each of ``triangles`` (t, 3) into ``points`` (n, 3)
+    [m, world], seen by the camera of ``pose`` in the raster of inverse intrinsics ``K_inv``."""
+    for t in prange(triangles.shape[0]):
+        grad[t] = _inverse_depth_gradient(pose, K_inv, points[triangles[t, 0]], points[triangles[t, 1]],
+                                          points[triangles[t, 2]])
+
+
+@njit(cache=True, inline="always")
+def _motion(t, b0, b1, b2, triangles, points, points2, pose, fx_fy_cx_cy, lens_k, has_lens,
+            pose2, fx_fy_cx_cy2, lens_k2, has_lens2, near2, far2, K_p2, depth2, grad_w2, map_col2, map_row2,
+            grad_A):
+    """One material point (triangle ``t``, barycentrics ``b``) of the frame: (X, X2, uv, uv2, occluded) as
+    (Xx, Xy, Xz, Yx, Yy, Yz, u1, v1, u2, v2, occluded), ``Y`` standing for X2; see :func:`point_motion`."""
+    c0, c1, c2 = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+    Xx = b0 * points[c0, 0] + b1 * points[c1, 0] + b2 * points[c2, 0]
+    Xy = b0 * points[c0, 1] + b1 * points[c1, 1] + b2 * points[c2, 1]
+    Xz = b0 * points[c0, 2] + b1 * points[c1, 2] + b2 * points[c2, 2]
+    Yx = b0 * points2[c0, 0] + b1 * points2[c1, 0] + b2 * points2[c2, 0]
+    Yy = b0 * points2[c0, 1] + b1 * points2[c1, 1] + b2 * points2[c2, 1]
+    Yz = b0 * points2[c0, 2] + b1 * points2[c1, 2] + b2 * points2[c2, 2]
+    p0, p1, p2 = _to_camera(pose, Xx, Xy, Xz)
+    u1, v1 = _pixel(p0, p1, p2, fx_fy_cx_cy, lens_k, has_lens)
+    y0, y1, z = _to_camera(pose2, Yx, Yy, Yz)
+    u, v = _pixel(y0, y1, z, fx_fy_cx_cy2, lens_k2, has_lens2)
+    # the pinhole raster's position of X2 (the raster is undistorted whatever the lens adds)
+    u_p = K_p2[0, 0] * y0 / z + K_p2[0, 2]
+    v_p = K_p2[1, 1] * y1 / z + K_p2[1, 2]
+    if has_lens2:
+        h2, w2 = map_col2.shape[0], map_col2.shape[1]
+        inside = z > 0.0 and z >= near2 and z <= far2 and u >= -0.5 and u < w2 - 0.5 and v >= -0.5 \
+            and v < h2 - 0.5
+    else:
+        h2, w2 = depth2.shape[0], depth2.shape[1]
+        inside = z >= near2 and z <= far2 and u_p >= -0.5 and u_p < w2 - 0.5 and v_p >= -0.5 and v_p < h2 - 0.5
+    if not inside:
+        return Xx, Xy, Xz, Yx, Yy, Yz, u1, v1, u, v, True
+    if has_lens2:
+        q_col = int(np.floor(u + 0.5))
+        q_row = int(np.floor(v + 0.5))
+        col, row = map_col2[q_row, q_col], map_row2[q_row, q_col]
+    else:
+        col, row = int(np.floor(u_p + 0.5)), int(np.floor(v_p + 0.5))
+    w_point = 1.0 / z
+    w_seen = 1.0 / depth2[row, col]  # 0 where nothing is seen: never in front
+    r = np.hypot(u_p - col, v_p - row)
+    tolerance = (grad_A[t] + grad_w2[row, col]) * r + W_ROUNDING * w_point
+    # an edge-on triangle (infinite gradient, or inf * 0): the point counts as visible
+    return Xx, Xy, Xz, Yx, Yy, Yz, u1, v1, u, v, np.isfinite(tolerance) and w_point < w_seen - tolerance
+
+
+@njit(cache=True, parallel=True)
+def point_motion(tri, bary, triangles, points, points2, pose, fx_fy_cx_cy, lens_k, has_lens,
+                 pose2, fx_fy_cx_cy2, lens_k2, has_lens2, near2, far2, K_p2, depth2, grad_w2, map_col2, map_row2,
+                 grad_A, uv, uv2, X, X2, occluded):
+    """The motion of material points ``(tri, bary)`` (k,), (k, 3) of a frame's surface (``triangles`` into
+    ``points``, its vertex positions; ``points2`` the same vertices in frame 2): writes the
+    point ``X`` (k, 3) and ``X2`` in frame 2, their output pixels ``uv`` (frame 1's camera) and ``uv2`` (frame
+    2's) (k, 2), and ``occluded`` (k,), whether ``X2`` is off frame 2's image, outside ``[near2, far2]`` or
+    behind frame 2's visible surface (``depth2``, ``grad_w2`` (H_p, W_p), its pinhole raster of intrinsics
+    ``K_p2``):
+
+        w(X2) < w_q - (|grad w_A| + |grad w_B|) r - 1e-9 w(X2)
+
+    with ``grad_A`` (t,) the ``triangle_gradients`` of ``triangles`` in frame 2 (``motion`` module docstring,
+    step 3). Through a lens (``has_lens2``) off-screen is decided in distorted pixels (the image is
+    ``map_col2``'s shape) and ``q`` is the pinhole pixel (``map_col2``, ``map_row2``) the nearest distorted pixel
+    samples; without one, the output image is the raster itself."""
+    for i in prange(tri.shape[0]):
+        X[i, 0], X[i, 1], X[i, 2], X2[i, 0], X2[i, 1], X2[i, 2], u1, v1, u, v, hidden = _motion(
+            tri[i], bary[i, 0], bary[i, 1], bary[i, 2], triangles, points, points2, pose, fx_fy_cx_cy,
+            lens_k, has_lens, pose2, fx_fy_cx_cy2, lens_k2, has_lens2, near2, far2, K_p2, depth2, grad_w2,
+            map_col2, map_row2, grad_A)
+        uv[i, 0], uv[i, 1], uv2[i, 0], uv2[i, 1] = u1, v1, u, v
+        occluded[i] = hidden
+
+
+@njit(cache=True, parallel=True)
+def pixel_motion(tri_id, bary, triangles, points, points2, pose, fx_fy_cx_cy, lens_k, has_lens,
+                 pose2, fx_fy_cx_cy2, lens_k2, has_lens2, near2, far2, K_p2, depth2, grad_w2, map_col2, map_row2,
+                 grad_A, flow, scene_flow, occluded):
+    """:func:`point_motion` of every pixel's material point (``tri_id`` (H, W), -1 where nothing is seen;
+    ``bary`` (H, W, 3)) written as images: ``flow`` (H, W, 2) float32 ``uv2 - uv``, ``scene_flow`` (H, W, 3)
+    float32 ``X2 - X`` (both NaN where nothing is seen) and ``occluded`` (H, W) (False there)."""
     h, w = tri_id.shape
     for row in prange(h):
         for col in range(w):
             t = tri_id[row, col]
             if t < 0:
-                grad_w[row, col] = 0.0
-            else:
-                grad_w[row, col] = _inverse_depth_gradient(pose, K_inv, points[triangles[t, 0]],
-                                                           points[triangles[t, 1]], points[triangles[t, 2]])
-
-
-@njit(cache=True, parallel=True)
-def point_motion(tri, bary, triangles, points, points2, pose, fx_fy_cx_cy, lens_k, has_lens,
-                 pose2, fx_fy_cx_cy2, lens_k2, has_lens2, near2, far2, K_p2, K_p2_inv, depth2, grad_w2,
-                 map_col2, map_row2, uv, uv2, X, X2, occluded):
-    """The motion of material points ``(tri, bary)`` (k,), (k, 3) of a frame's surface (``triangles`` into
-    ``points``, its vertex positions; ``points2`` the same vertices in frame 2): writes the point ``X`` (k, 3)
-    and ``X2`` in frame 2, their output pixels ``uv`` (frame 1's camera) and ``uv2`` (frame 2's) (k, 2), and
-    ``occluded`` (k,), whether ``X2`` is off frame 2's image, outside ``[near2, far2]`` or behind frame 2's
-    visible surface (``depth2``, ``grad_w2`` (H_p, W_p), its pinhole raster of intrinsics ``K_p2``):
-
-        w(X2) < w_q - (|grad w_A| + |grad w_B|) r - 1e-9 w(X2)
-
-    (``motion`` module docstring, step 3). Through a lens (``has_lens2``) off-screen is decided in distorted
-    pixels (the image is ``map_col2``'s shape) and ``q`` is the pinhole pixel (``map_col2``, ``map_row2``) the
-    nearest distorted pixel samples; without one, the output image is the raster itself."""
-    h2, w2 = (map_col2.shape[0], map_col2.shape[1]) if has_lens2 else (depth2.shape[0], depth2.shape[1])
-    for i in prange(tri.shape[0]):
-        c = triangles[tri[i]]
-        b0, b1, b2 = bary[i, 0], bary[i, 1], bary[i, 2]
-        for d in range(3):
-            X[i, d] = b0 * points[c[0], d] + b1 * points[c[1], d] + b2 * points[c[2], d]
-            X2[i, d] = b0 * points2[c[0], d] + b1 * points2[c[1], d] + b2 * points2[c[2], d]
-        x0, x1, x2 = _to_camera(pose, X[i, 0], X[i, 1], X[i, 2])
-        uv[i, 0], uv[i, 1] = _pixel(x0, x1, x2, fx_fy_cx_cy, lens_k, has_lens)
-        y0, y1, z = _to_camera(pose2, X2[i, 0], X2[i, 1], X2[i, 2])
-        u, v = _pixel(y0, y1, z, fx_fy_cx_cy2, lens_k2, has_lens2)
-        uv2[i, 0], uv2[i, 1] = u, v
-        # the pinhole raster's position of X2 (the raster is undistorted whatever the lens adds)
-        u_p = K_p2[0, 0] * y0 / z + K_p2[0, 2]
-        v_p = K_p2[1, 1] * y1 / z + K_p2[1, 2]
-        if has_lens2:
-            inside = z > 0.0 and z >= near2 and z <= far2 and u >= -0.5 and u < w2 - 0.5 and v >= -0.5 \
-                and v < h2 - 0.5
-        else:
-            inside = z >= near2 and z <= far2 and u_p >= -0.5 and u_p < w2 - 0.5 and v_p >= -0.5 \
-                and v_p < h2 - 0.5
-        if not inside:
-            occluded[i] = True
-            continue
-        if has_lens2:
-            q_col = int(np.floor(u + 0.5))
-            q_row = int(np.floor(v + 0.5))
-            col, row = map_col2[q_row, q_col], map_row2[q_row, q_col]
-        else:
-            col, row = int(np.floor(u_p + 0.5)), int(np.floor(v_p + 0.5))
-        w_point = 1.0 / z
-        w_seen = 1.0 / depth2[row, col]  # 0 where nothing is seen: never in front
-        r = np.hypot(u_p - col, v_p - row)
-        grad_A = _inverse_depth_gradient(pose2, K_p2_inv, points2[c[0]], points2[c[1]], points2[c[2]])
-        tolerance = (grad_A + grad_w2[row, col]) * r + W_ROUNDING * w_point
-        # an edge-on triangle (infinite gradient, or inf * 0): the point counts as visible
-        occluded[i] = np.isfinite(tolerance) and w_point < w_seen - tolerance
+                flow[row, col, 0] = np.nan
+                flow[row, col, 1] = np.nan
+                for d in range(3):
+                    scene_flow[row, col, d] = np.nan
+                occluded[row, col] = False
+                continue
+            x0, x1, x2, y0, y1, y2, u1, v1, u, v, hidden = _motion(
+                t, bary[row, col, 0], bary[row, col, 1], bary[row, col, 2], triangles, points, points2,
+                pose, fx_fy_cx_cy, lens_k, has_lens, pose2, fx_fy_cx_cy2, lens_k2, has_lens2, near2, far2, K_p2,
+                depth2, grad_w2, map_col2, map_row2, grad_A)
+            flow[row, col, 0] = u - u1
+            flow[row, col, 1] = v - v1
+            scene_flow[row, col, 0] = y0 - x0
+            scene_flow[row, col, 1] = y1 - x1
+            scene_flow[row, col, 2] = y2 - x2
+            occluded[row, col] = hidden

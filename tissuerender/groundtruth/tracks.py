@@ -95,7 +95,7 @@ class Tracks:
         """Column ``k`` (frame index from 0) from that frame's raster: each query's material point
         ``X_k = sum_i b_i P_k,i``, its pixel and its occlusion (``motion.points_motion``)."""
         for source, rows, tri, bary in self.groups:
-            points_k = carried_through_cut(source, target.geometry.points)
+            points_k = carried_through_cut(source, target.geometry.points, source.triangles[tri])
             _, uv2, _, X2, occluded = points_motion(source, tri, bary, points_k, target)
             self.points_3d[rows, k] = X2
             self.points_2d[rows, k] = uv2
