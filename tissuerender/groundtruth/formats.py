@@ -162,11 +162,16 @@ def _check_flow(flow: np.ndarray) -> np.ndarray:
 def write_flo(path: Path, flow: np.ndarray) -> None:
     """Middlebury ``.flo``: magic 202021.25, width, height (int32), then float32 (u, v) per pixel in row
     order, little-endian; NaN (no flow) written as ``FLO_UNKNOWN``."""
-    flow = _check_flow(flow).astype("<f4")
-    flow = np.where(np.isfinite(flow).all(axis=2, keepdims=True), flow, np.float32(FLO_UNKNOWN))
+    flow = _check_flow(flow).astype("<f4", copy=False)
+    values = np.where(np.isfinite(flow).all(axis=2, keepdims=True), flow, np.float32(FLO_UNKNOWN))
     h, w = flow.shape[:2]
-    data = struct.pack("<fii", FLO_MAGIC, w, h) + flow.astype("<f4").tobytes()
-    write_atomic(path, lambda tmp: Path(tmp).write_bytes(data))
+
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            f.write(struct.pack("<fii", FLO_MAGIC, w, h))
+            values.tofile(f)  # C order: (u, v) per pixel, row by row
+
+    write_atomic(path, write)
 
 
 def encode_kitti_flow(flow: np.ndarray) -> np.ndarray:
