@@ -91,7 +91,8 @@ def finish_sequence(out: Path, scene, finished, frames: int | None = None,
         for j in (k - 1, k):  # a frame's flows once its following frame's raster exists
             if j in flow_frames and (j + 1 > frames or j + 1 in rasters):
                 with rec.run(stage):
-                    arrays = neighbour_flows(rasters[j], rasters.get(j - 1), rasters.get(j + 1))
+                    arrays = neighbour_flows(rasters[j], rasters[j - 1] if j > 1 else None,
+                                             rasters[j + 1] if j < frames else None)
                     for name in flow_names:
                         written.append(write_array(pass_path(out, name, j), arrays[name]))
                 flow_frames.discard(j)

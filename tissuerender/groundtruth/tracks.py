@@ -36,7 +36,7 @@ from PIL import Image
 
 from tissuerender.files import write_atomic
 from tissuerender.groundtruth.cameras import intrinsics, world_to_camera
-from tissuerender.groundtruth.motion import FrameRaster, Geometry, carried_through_cut, frame_raster, lens_of, points_motion
+from tissuerender.groundtruth.motion import FrameRaster, Geometry, carried_through_cut, lens_of, points_motion
 
 def sample_queries(first: FrameRaster, body_objects, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(indices into frame 1's covered pixels (row-major) of the chosen queries (N,), their (row, col) (N, 2)):
