@@ -26,6 +26,7 @@ from PIL import Image
 
 from tissuerender.files import write_atomic
 from tissuerender.groundtruth.output import PASSES_FOLDER, pass_path
+from tissuerender.groundtruth.pass_kernels import kitti_flow_code
 from tissuerender.stages import StageRecorder, recorder_or_new
 
 FLOW_KEYS = ("flow_forward", "flow_backward")  # the passes written as .flo and KITTI PNG as well
@@ -177,12 +178,9 @@ def write_flo(path: Path, flow: np.ndarray) -> None:
 def encode_kitti_flow(flow: np.ndarray) -> np.ndarray:
     """(H, W, 3) uint16: ``u * 64 + 2^15``, ``v * 64 + 2^15`` rounded, and 1 where the flow is valid: finite
     and representable (``-512 <= u, v < 512``); invalid pixels are (0, 0, 0)."""
-    flow = _check_flow(flow)
-    coded = np.rint(flow.astype(float) * KITTI_SCALE + KITTI_OFFSET)
-    valid = ((coded >= 0) & (coded <= 65535)).all(axis=2)  # NaN fails both comparisons
-    out = np.zeros(flow.shape[:2] + (3,), np.uint16)
-    np.copyto(out[..., :2], coded, casting="unsafe", where=valid[..., None])
-    out[..., 2] = valid
+    flow = np.ascontiguousarray(_check_flow(flow), float)
+    out = np.empty(flow.shape[:2] + (3,), np.uint16)
+    kitti_flow_code(flow, KITTI_SCALE, KITTI_OFFSET, out)
     return out
 
 

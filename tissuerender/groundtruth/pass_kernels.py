@@ -1,7 +1,8 @@
-"""The per-pixel interpolation of the single-frame passes (``passes`` module docstring) as numba kernels: each
-covered pixel's value is ``sum_i b_i V_i`` over the corners of the triangle it sees, summed in the order
-``b0 V0 + b1 V1 + b2 V2`` (the order of the ``einsum`` they replace), without fused multiply-adds (no
-``fastmath``). Pixels are independent, so ``prange`` over rows gives the same result for any number of threads.
+"""The per-pixel arithmetic of the single-frame passes (``passes`` module docstring) and of the KITTI flow PNG
+(``formats.encode_kitti_flow``) as numba kernels. A covered pixel's pass value is ``sum_i b_i V_i`` over the
+corners of the triangle it sees, summed in the order ``b0 V0 + b1 V1 + b2 V2`` (the order of the ``einsum``
+they replace), without fused multiply-adds (no ``fastmath``). Pixels are independent, so ``prange`` over rows
+gives the same result for any number of threads.
 """
 from __future__ import annotations
 
@@ -57,3 +58,23 @@ def camera_normals(normals, points, triangles, tri_id, bary, eye, R, out):
                 n0, n1, n2 = -n0, -n1, -n2  # seen from behind: the normal faces the viewer, as in shading
             for i in range(3):
                 out[row, col, i] = R[i, 0] * n0 + R[i, 1] * n1 + R[i, 2] * n2
+
+
+@njit(cache=True, parallel=True)
+def kitti_flow_code(flow, scale, offset, out):
+    """``out`` (H, W, 3) uint16: the KITTI flow PNG's ``rint(u * scale + offset)``, ``rint(v * scale + offset)``
+    and 1 where both fit in 16 bits, (0, 0, 0) elsewhere (NaN fails every comparison) for ``flow`` (H, W, 2)
+    float64 (``formats.encode_kitti_flow``)."""
+    h, w = flow.shape[0], flow.shape[1]
+    for row in prange(h):
+        for col in range(w):
+            cu = np.rint(flow[row, col, 0] * scale + offset)
+            cv = np.rint(flow[row, col, 1] * scale + offset)
+            if cu >= 0.0 and cu <= 65535.0 and cv >= 0.0 and cv <= 65535.0:
+                out[row, col, 0] = np.uint16(cu)
+                out[row, col, 1] = np.uint16(cv)
+                out[row, col, 2] = 1
+            else:
+                out[row, col, 0] = 0
+                out[row, col, 1] = 0
+                out[row, col, 2] = 0
