@@ -10,8 +10,8 @@ for a sequence. The motion of frame ``t``'s pixels to frame ``t2``:
    pixel's surface point is ``X = sum_i b_i P_i`` (perspective-correct barycentrics ``b`` of its triangle) and
    the same material point in frame ``t2`` is ``X2 = sum_i b_i P2_i``. Triangles cut by the near plane carry
    ``P2`` through the cut linearly, like the rest positions of ``material_coords``, so ``X2`` stays exact.
-2. ``scene_flow = X2 - X`` [m, world]; ``flow = project_t2(X2) - project_t(X)`` [pixels], both through
-   :func:`_project` (``project_t(X)`` is the pixel centre up to rounding).
+2. ``scene_flow = X2 - X`` [m, world]; ``flow = project_t2(X2) - project_t(X)`` [pixels], both through ``K``
+   and ``world_to_camera`` as :func:`_project` (``project_t(X)`` is the pixel centre up to rounding).
 3. **Occlusion**: ``X2`` is hidden in frame ``t2`` when it projects outside the image, lies outside
    ``[near, far]``, or lies behind frame ``t2``'s visible surface at its nearest pixel ``q``. The test is made
    in inverse depth ``w = 1/z``, which is exactly affine in pixel position over a planar triangle: on the
@@ -40,6 +40,10 @@ pixel, ``K`` the pinhole's).
 
 The geometry is stored as float32 (``write_geometry``), so a re-raster may differ from the colour image's
 float64 raster on a pixel whose centre lies within float32 rounding of a silhouette edge.
+
+Each frame is re-rasterised once (:func:`frame_raster`) and the raster serves both roles, frame ``t`` of its
+own flows and frame ``t2`` of its neighbours' (and the tracks'); steps 1 to 3 run per pixel (per track point)
+in ``motion_kernels``.
 """
 from __future__ import annotations
 
@@ -173,7 +177,7 @@ def frame_raster(geom: Geometry, targets=()) -> FrameRaster:
     n = geom.points.shape[0]
     for points in targets:
         if np.shape(points) != (n, 3):
-            raise ValueError(f"carry: expected target vertex positions of shape ({n}, 3), found {np.shape(points)}")
+            raise ValueError(f"frame_raster: expected target vertex positions of shape ({n}, 3), found {np.shape(points)}")
     attributes = np.concatenate([np.asarray(p, float) for p in targets], axis=1) if len(targets) else np.zeros((n, 0))
     lens = lens_of(geom.camera, geom.lens_k)
     view = geom.camera if lens is None else lens.pinhole

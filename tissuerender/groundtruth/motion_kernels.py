@@ -4,7 +4,11 @@ against the other frame's visible surface. Pure functions over structure-of-arra
 packed as arrays (``pose`` (3, 4) ``[R | t]`` world to OpenCV camera, ``fx_fy_cx_cy`` (4,), ``lens_k`` (4,)
 Kannala-Brandt coefficients, read only when ``has_lens``), so each kernel has one compiled signature.
 
-Every point is independent of the others, so ``prange`` gives the same result for any number of threads.
+Every point is independent of the others, so ``pixel_motion``'s ``prange`` over rows gives the same result for
+any number of threads; ``triangle_gradients`` and ``point_motion`` (the few track points) do too little work
+per call for a parallel region to pay for itself on a shared machine and run serially (docs/ground-truth.md,
+"Cost").
+
 Sums run in the order of the NumPy expressions they replace (``b0 P0 + b1 P1 + b2 P2``, ``R x + t`` row by
 row) without fused multiply-adds (no ``fastmath``); BLAS may sum or fuse ``R x + t`` differently, so a value
 can differ from the NumPy form in its last float64 bit.
@@ -63,11 +67,11 @@ def _inverse_depth_gradient(pose, K_inv, p, q, s):
     return grad if np.isfinite(grad) else np.inf
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def triangle_gradients(triangles, points, pose, K_inv, grad):
     """``grad`` (t,) = ``_inverse_depth_gradient`` of each of ``triangles`` (t, 3) into ``points`` (n, 3)
     [m, world], seen by the camera of ``pose`` in the raster of inverse intrinsics ``K_inv``."""
-    for t in prange(triangles.shape[0]):
+    for t in range(triangles.shape[0]):
         grad[t] = _inverse_depth_gradient(pose, K_inv, points[triangles[t, 0]], points[triangles[t, 1]],
                                           points[triangles[t, 2]])
 
@@ -115,7 +119,7 @@ def _motion(t, b0, b1, b2, triangles, points, points2, pose, fx_fy_cx_cy, lens_k
     return Xx, Xy, Xz, Yx, Yy, Yz, u1, v1, u, v, np.isfinite(tolerance) and w_point < w_seen - tolerance
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def point_motion(tri, bary, triangles, points, points2, pose, fx_fy_cx_cy, lens_k, has_lens,
                  pose2, fx_fy_cx_cy2, lens_k2, has_lens2, near2, far2, K_p2, depth2, grad_w2, map_col2, map_row2,
                  grad_A, uv, uv2, X, X2, occluded):
@@ -132,7 +136,7 @@ def point_motion(tri, bary, triangles, points, points2, pose, fx_fy_cx_cy, lens_
     step 3). Through a lens (``has_lens2``) off-screen is decided in distorted pixels (the image is
     ``map_col2``'s shape) and ``q`` is the pinhole pixel (``map_col2``, ``map_row2``) the nearest distorted pixel
     samples; without one, the output image is the raster itself."""
-    for i in prange(tri.shape[0]):
+    for i in range(tri.shape[0]):
         X[i, 0], X[i, 1], X[i, 2], X2[i, 0], X2[i, 1], X2[i, 2], u1, v1, u, v, hidden = _motion(
             tri[i], bary[i, 0], bary[i, 1], bary[i, 2], triangles, points, points2, pose, fx_fy_cx_cy,
             lens_k, has_lens, pose2, fx_fy_cx_cy2, lens_k2, has_lens2, near2, far2, K_p2, depth2, grad_w2,

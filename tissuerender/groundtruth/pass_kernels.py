@@ -1,8 +1,9 @@
 """The per-pixel arithmetic of the single-frame passes (``passes`` module docstring) and of the KITTI flow PNG
 (``formats.encode_kitti_flow``) as numba kernels. A covered pixel's pass value is ``sum_i b_i V_i`` over the
 corners of the triangle it sees, summed in the order ``b0 V0 + b1 V1 + b2 V2`` (the order of the ``einsum``
-they replace), without fused multiply-adds (no ``fastmath``). Pixels are independent, so ``prange`` over rows
-gives the same result for any number of threads.
+they replace), without fused multiply-adds (no ``fastmath``). ``camera_normals`` runs its rows in ``prange``
+(pixels are independent: the same result for any number of threads); the others do too little work per pixel
+for a parallel region to pay for itself on a shared machine and run serially (docs/ground-truth.md, "Cost").
 """
 from __future__ import annotations
 
@@ -10,13 +11,13 @@ import numpy as np
 from numba import njit, prange
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def interpolate_pixels(values, triangles, tri_id, bary, out):
     """``out`` (H, W, d) = ``sum_i b_i values[corner_i]`` of the triangle ``tri_id`` (H, W) sees (``triangles``
     (t, 3) into ``values`` (n, d), barycentrics ``bary`` (H, W, 3)); NaN where ``tri_id`` is -1."""
     h, w = tri_id.shape
     d = values.shape[1]
-    for row in prange(h):
+    for row in range(h):
         for col in range(w):
             t = tri_id[row, col]
             if t < 0:
@@ -60,13 +61,13 @@ def camera_normals(normals, points, triangles, tri_id, bary, eye, R, out):
                 out[row, col, i] = R[i, 0] * n0 + R[i, 1] * n1 + R[i, 2] * n2
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def kitti_flow_code(flow, scale, offset, out):
     """``out`` (H, W, 3) uint16: the KITTI flow PNG's ``rint(u * scale + offset)``, ``rint(v * scale + offset)``
     and 1 where both fit in 16 bits, (0, 0, 0) elsewhere (NaN fails every comparison) for ``flow`` (H, W, 2)
     float64 (``formats.encode_kitti_flow``)."""
     h, w = flow.shape[0], flow.shape[1]
-    for row in prange(h):
+    for row in range(h):
         for col in range(w):
             cu = np.rint(flow[row, col, 0] * scale + offset)
             cv = np.rint(flow[row, col, 1] * scale + offset)
