@@ -164,8 +164,9 @@ def _inverse_depth_gradient(corners: np.ndarray, camera: Camera) -> np.ndarray:
 
 def _surface(geom: Geometry, attributes: np.ndarray) -> RenderSurface:
     n = geom.points.shape[0]
-    return RenderSurface(np.asarray(geom.points, float), np.asarray(geom.triangles, np.int64), np.zeros((n, 3)),
-                         attributes, np.asarray(geom.tri_object, np.int64))
+    # contiguous float64 / int64 whatever the caller's arrays: the kernels keep one compiled signature
+    return RenderSurface(np.ascontiguousarray(geom.points, float), np.ascontiguousarray(geom.triangles, np.int64),
+                         np.zeros((n, 3)), attributes, np.asarray(geom.tri_object, np.int64))
 
 
 _NO_MAP = np.zeros((0, 0), np.int64)
