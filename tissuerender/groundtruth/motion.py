@@ -178,7 +178,8 @@ def frame_raster(geom: Geometry, targets=()) -> FrameRaster:
     n = geom.points.shape[0]
     for points in targets:
         if np.shape(points) != (n, 3):
-            raise ValueError(f"frame_raster: expected target vertex positions of shape ({n}, 3), found {np.shape(points)}")
+            raise ValueError(f"frame_raster: expected target vertex positions of shape ({n}, 3), found "
+                             f"{np.shape(points)}")
     attributes = np.concatenate([np.asarray(p, float) for p in targets], axis=1) if len(targets) else np.zeros((n, 0))
     lens = lens_of(geom.camera, geom.lens_k)
     view = geom.camera if lens is None else lens.pinhole
@@ -187,7 +188,9 @@ def frame_raster(geom: Geometry, targets=()) -> FrameRaster:
     K_view = intrinsics(view)
     grad_tri = np.empty(surface.triangles.shape[0])
     triangle_gradients(surface.triangles, surface.points, pose, np.linalg.inv(K_view), grad_tri)
-    grad_w = np.where(raster.tri_id >= 0, grad_tri[raster.tri_id], 0.0)
+    covered = raster.tri_id >= 0
+    grad_w = np.zeros(raster.depth.shape)
+    grad_w[covered] = grad_tri[raster.tri_id[covered]]
     tri_id, bary = raster.tri_id, raster.bary
     if lens is None:
         K, lens_k, map_col, map_row = K_view, np.zeros(4), _NO_MAP, _NO_MAP
