@@ -1,18 +1,21 @@
 """What the ground-truth passes cost (issue 18, "Performance"): one 640x480 frame of scenes/liver_probe.toml,
-colour alone (render, post-effects, PNG) against colour plus all four passes (depth, normal, segmentation,
-material_coords: their raster, each pass, and the passes/*.npy files), then plus the EXR and 16-bit depth PNG,
-then every pass (plus flow, scene_flow and tracks: the frame's render geometry and its geometry file, and the
-frame's share of the sequence's motion passes, ``groundtruth.finish_sequence`` over MOTION_FRAMES frames with
-the flow's .flo / KITTI / EXR layers, divided by MOTION_FRAMES).
+colour alone (render, post-effects, PNG) against colour plus all four single-frame passes (depth, normal,
+segmentation, material_coords: their raster, each pass, and the passes/*.npy files), then plus the EXR and 16-bit
+depth PNG; then every pass with its master files only (the four plus flow, scene_flow and tracks: the frame's
+render geometry and its geometry file, and the frame's share of the sequence's motion passes,
+``groundtruth.finish_sequence`` over MOTION_FRAMES frames writing the flow .npy masters and tracks.npz with its
+TAP-Vid layouts, divided by MOTION_FRAMES), then every pass with every file (the EXR, depth PNG, and the flow's
+.flo / KITTI PNG / EXR layers).
 
-Usage: .venv/bin/python benchmarks/passes_cost.py [--quick]
-The two variants run in interleaved rounds (colour, colour + passes, colour, ...) after one warm-up each, so
-a machine that slows down or speeds up during the run affects both alike; the figures are medians over the
+Usage: .venv/bin/python benchmarks/passes_cost.py [--quick] [--rounds N]
+The variants run in interleaved rounds (colour, colour + passes, ..., colour, ...) after one warm-up each, so
+a machine that slows down or speeds up during the run affects them alike; the figures are medians over the
 rounds. ``--quick``: 160x120 and two rounds, to check the script works. Last line: one JSON object with
 ``seconds_colour``, ``seconds_colour_passes`` (passes and their .npy files), ``seconds_colour_passes_files``
-(and the EXR and depth PNG), ``seconds_colour_all`` (every pass and file, the motion passes' share included),
-the ratios ``ratio_passes``, ``ratio_passes_files`` and ``ratio_all`` (to colour alone) and the per-stage
-medians of the last variant from its stage recorder (``stage_<name>``, per frame).
+(and the EXR and depth PNG), ``seconds_colour_all`` (every pass and its master files, the motion passes' share
+included), ``seconds_colour_all_files`` (and every other format), the ratios ``ratio_passes``,
+``ratio_passes_files``, ``ratio_all`` and ``ratio_all_files`` (to colour alone) and the per-stage medians of the
+last variant from its stage recorder (``stage_<name>``, per frame).
 """
 from __future__ import annotations
 
@@ -69,16 +72,17 @@ def frame(world, scene, plan, out: Path, passes: list[str], files: bool, index: 
     return time.perf_counter() - start, rec
 
 
-def motion_share(scene, out: Path) -> tuple[float, StageRecorder]:
+def motion_share(scene, out: Path, files: bool) -> tuple[float, StageRecorder]:
     """The sequence's motion passes from the MOTION_FRAMES frames' geometry in ``out`` (flows of each frame to
-    its neighbours, their .flo / KITTI / EXR layers, tracks.npz and its TAP-Vid files), per frame: (wall
-    seconds / MOTION_FRAMES, the stage recorder)."""
+    its neighbours, tracks.npz and its TAP-Vid files; with ``files`` the flow's .flo / KITTI / EXR layers), per
+    frame: (wall seconds / MOTION_FRAMES, the stage recorder)."""
     rec = StageRecorder()
     frames = range(1, MOTION_FRAMES + 1)
     start = time.perf_counter()
     groundtruth.finish_sequence(out, scene, set(frames), MOTION_FRAMES, rec)
-    with rec.run("write_flow_files"):
-        formats.complete_from_masters(out, list(frames), ["exr"])
+    if files:
+        with rec.run("write_flow_files"):
+            formats.complete_from_masters(out, list(frames), ["exr"])
     return (time.perf_counter() - start) / MOTION_FRAMES, rec
 
 
@@ -96,7 +100,8 @@ def main() -> None:
     world, plan = checked.world, checked.plan
     rounds = args.rounds or (2 if args.quick else 7)
     variants = {"colour": ([], False), "colour_passes": (list(groundtruth.PASS_NAMES), False),
-                "colour_passes_files": (list(groundtruth.PASS_NAMES), True), "colour_all": (every, True)}
+                "colour_passes_files": (list(groundtruth.PASS_NAMES), True), "colour_all": (every, False),
+                "colour_all_files": (every, True)}
     seconds = {name: [] for name in variants}
     stages: dict[str, list[float]] = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -108,25 +113,28 @@ def main() -> None:
         # their EXRs as a frame writes them, before finish_sequence adds the flow layers: put back before each
         # timed finish_sequence, so every round rewrites every frame's EXR as a render does (untimed copy)
         fresh = {k: formats.exr_path(out, k).read_bytes() for k in range(2, MOTION_FRAMES + 1)}
-        motion_share(scene, out)
+        motion_share(scene, out, True)
         for _ in range(rounds):
             for name, (passes, files) in variants.items():
                 wall, rec = frame(world, scene, plan, out, passes, files)
-                if name == "colour_all":
-                    for k, data in fresh.items():
-                        formats.exr_path(out, k).write_bytes(data)
-                    share, motion_rec = motion_share(scene, out)
+                if name.startswith("colour_all"):
+                    if files:
+                        for k, data in fresh.items():
+                            formats.exr_path(out, k).write_bytes(data)
+                    share, motion_rec = motion_share(scene, out, files)
                     wall += share
                     for stage, s in motion_rec.seconds.items():
                         rec.seconds[stage] = rec.seconds.get(stage, 0.0) + s / MOTION_FRAMES
-                    for stage, s in rec.seconds.items():
-                        stages.setdefault(stage, []).append(s)
+                    if files:
+                        for stage, s in rec.seconds.items():
+                            stages.setdefault(stage, []).append(s)
                 seconds[name].append(wall)
     med = {name: statistics.median(v) for name, v in seconds.items()}
     result = {f"seconds_{name}": round(v, 4) for name, v in med.items()}
     result["ratio_passes"] = round(med["colour_passes"] / med["colour"], 4)
     result["ratio_passes_files"] = round(med["colour_passes_files"] / med["colour"], 4)
     result["ratio_all"] = round(med["colour_all"] / med["colour"], 4)
+    result["ratio_all_files"] = round(med["colour_all_files"] / med["colour"], 4)
     result.update({f"stage_{s}": round(statistics.median(v), 4) for s, v in sorted(stages.items())})
     result.update(resolution=[width, height], rounds=rounds, machine=f"{platform.machine()} {os.cpu_count()} cpus")
     print(f"liver_probe {width}x{height}, median of {rounds} interleaved rounds:")

@@ -26,6 +26,7 @@ from PIL import Image
 
 from tissuerender.files import write_atomic
 from tissuerender.groundtruth.output import PASSES_FOLDER, pass_path
+from tissuerender.groundtruth.pass_kernels import kitti_flow_code
 from tissuerender.stages import StageRecorder, recorder_or_new
 
 FLOW_KEYS = ("flow_forward", "flow_backward")  # the passes written as .flo and KITTI PNG as well
@@ -138,9 +139,16 @@ def encode_depth_png(depth: np.ndarray, scale: float) -> np.ndarray:
     return units
 
 
+# zlib level of the PNGs written per frame (depth, KITTI flow): level 1 writes a 640x480 frame's PNG several
+# times faster than the default 6 for about 1.5 to 2 times the bytes; every reader decodes any level
+# (docs/ground-truth.md, "Cost")
+PNG_ZLIB_LEVEL = 1
+
+
 def write_depth_png(path: Path, depth: np.ndarray, scale: float) -> None:
     units = encode_depth_png(depth, scale)
-    write_atomic(path, lambda tmp: Image.fromarray(units).save(tmp, format="PNG"))  # uint16: Pillow mode I;16
+    write_atomic(path, lambda tmp: Image.fromarray(units).save(tmp, format="PNG",  # uint16: Pillow mode I;16
+                                                               compress_level=PNG_ZLIB_LEVEL))
 
 
 # --- optical flow: Middlebury .flo and KITTI PNG --------------------------------------------------------------
@@ -155,22 +163,24 @@ def _check_flow(flow: np.ndarray) -> np.ndarray:
 def write_flo(path: Path, flow: np.ndarray) -> None:
     """Middlebury ``.flo``: magic 202021.25, width, height (int32), then float32 (u, v) per pixel in row
     order, little-endian; NaN (no flow) written as ``FLO_UNKNOWN``."""
-    flow = _check_flow(flow).astype("<f4")
-    flow = np.where(np.isfinite(flow).all(axis=2, keepdims=True), flow, np.float32(FLO_UNKNOWN))
+    flow = _check_flow(flow).astype("<f4", copy=False)
+    values = np.where(np.isfinite(flow).all(axis=2, keepdims=True), flow, np.float32(FLO_UNKNOWN))
     h, w = flow.shape[:2]
-    data = struct.pack("<fii", FLO_MAGIC, w, h) + flow.astype("<f4").tobytes()
-    write_atomic(path, lambda tmp: Path(tmp).write_bytes(data))
+
+    def write(tmp):
+        with open(tmp, "wb") as f:
+            f.write(struct.pack("<fii", FLO_MAGIC, w, h))
+            values.tofile(f)  # C order: (u, v) per pixel, row by row
+
+    write_atomic(path, write)
 
 
 def encode_kitti_flow(flow: np.ndarray) -> np.ndarray:
     """(H, W, 3) uint16: ``u * 64 + 2^15``, ``v * 64 + 2^15`` rounded, and 1 where the flow is valid: finite
     and representable (``-512 <= u, v < 512``); invalid pixels are (0, 0, 0)."""
-    flow = _check_flow(flow).astype(float)
-    coded = np.rint(flow * KITTI_SCALE + KITTI_OFFSET)
-    valid = (np.isfinite(coded) & (coded >= 0) & (coded <= 65535)).all(axis=2)
-    out = np.zeros(flow.shape[:2] + (3,), np.uint16)
-    out[valid, :2] = coded[valid]
-    out[valid, 2] = 1
+    flow = np.ascontiguousarray(_check_flow(flow), float)
+    out = np.empty(flow.shape[:2] + (3,), np.uint16)
+    kitti_flow_code(flow, KITTI_SCALE, KITTI_OFFSET, out)
     return out
 
 
@@ -189,6 +199,8 @@ def encode_png16_rgb(rgb: np.ndarray) -> bytes:
     h, w = rgb.shape[:2]
     codec = av.CodecContext.create("png", "w")
     codec.width, codec.height, codec.pix_fmt = w, h, "rgb48be"
+    # FFmpeg's png encoder options: zlib level PNG_ZLIB_LEVEL, each row filtered by its left neighbour's difference
+    codec.options = {"compression_level": str(PNG_ZLIB_LEVEL), "pred": "sub"}
     frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(rgb, np.uint16), format="rgb48le")
     packets = list(codec.encode(frame.reformat(format="rgb48be"))) + list(codec.encode(None))
     return b"".join(bytes(p) for p in packets)

@@ -10,8 +10,8 @@ for a sequence. The motion of frame ``t``'s pixels to frame ``t2``:
    pixel's surface point is ``X = sum_i b_i P_i`` (perspective-correct barycentrics ``b`` of its triangle) and
    the same material point in frame ``t2`` is ``X2 = sum_i b_i P2_i``. Triangles cut by the near plane carry
    ``P2`` through the cut linearly, like the rest positions of ``material_coords``, so ``X2`` stays exact.
-2. ``scene_flow = X2 - X`` [m, world]; ``flow = project_t2(X2) - project_t(X)`` [pixels], both through
-   :func:`_project` (``project_t(X)`` is the pixel centre up to rounding).
+2. ``scene_flow = X2 - X`` [m, world]; ``flow = project_t2(X2) - project_t(X)`` [pixels], both through ``K``
+   and ``world_to_camera`` as :func:`_project` (``project_t(X)`` is the pixel centre up to rounding).
 3. **Occlusion**: ``X2`` is hidden in frame ``t2`` when it projects outside the image, lies outside
    ``[near, far]``, or lies behind frame ``t2``'s visible surface at its nearest pixel ``q``. The test is made
    in inverse depth ``w = 1/z``, which is exactly affine in pixel position over a planar triangle: on the
@@ -40,6 +40,10 @@ pixel, ``K`` the pinhole's).
 
 The geometry is stored as float32 (``write_geometry``), so a re-raster may differ from the colour image's
 float64 raster on a pixel whose centre lies within float32 rounding of a silhouette edge.
+
+Each frame is re-rasterised once (:func:`frame_raster`) and the raster serves both roles, frame ``t`` of its
+own flows and frame ``t2`` of its neighbours' (and the tracks'); steps 1 to 3 run per pixel (per track point)
+in ``motion_kernels``.
 """
 from __future__ import annotations
 
@@ -48,13 +52,11 @@ from functools import lru_cache
 
 import numpy as np
 
-
 from tissuerender.groundtruth.cameras import intrinsics, world_to_camera
 from tissuerender.groundtruth.lens import FisheyeLens, fisheye_lens
+from tissuerender.groundtruth.motion_kernels import pixel_motion, point_motion, triangle_gradients
 from tissuerender.renderer.camera import Camera
-from tissuerender.renderer.gbuffer import RenderSurface, rasterise
-
-W_ROUNDING = 1e-9  # relative float64 rounding allowance of an inverse depth (module docstring)
+from tissuerender.renderer.gbuffer import RenderSurface, clip_near, rasterise
 
 
 @dataclass
@@ -90,26 +92,37 @@ def lens_of(camera: Camera, lens_k) -> FisheyeLens | None:
 
 
 @dataclass
-class _Carried:
-    """A frame re-rasterised at pixel centres, carrying other frames' vertex positions: ``covered`` (H, W),
-    per covered pixel (row-major order) the render object ``obj`` (k,), the point ``X`` (k, 3) and per carried
-    frame its material point (k, 3) in ``targets`` and its triangle's three corners (k, 3, 3) in ``corners``."""
+class FrameRaster:
+    """A frame re-rasterised once at its pixel centres (step 1), shared by its own flows, its neighbours' flows
+    towards it and the tracks. The clipped render surface: ``points`` (m, 3) float64 [m], ``triangles`` (t, 3)
+    int64, ``tri_object`` (t,) and ``carried`` (m, 3 j) the vertex positions of the ``j`` other frames it was
+    asked to carry, through the near-plane cut like the points. Per output pixel: ``tri_id`` (H, W) (-1: nothing
+    seen) and ``bary`` (H, W, 3) (through a lens, the pinhole raster remapped nearest). The visible surface of
+    the occlusion test, in the pinhole raster (``view``): ``depth`` (H_p, W_p) camera z (inf: nothing) and
+    ``grad_w`` (H_p, W_p) the screen gradient magnitude of ``1/z`` of the triangle seen [1/(m px)]. The rest are
+    the cameras as :mod:`motion_kernels` reads them."""
 
-    covered: np.ndarray
-    obj: np.ndarray
-    X: np.ndarray
-    targets: list
-    corners: list
-
-
-@dataclass
-class _Visible:
-    """Frame ``t2``'s visible surface for the occlusion test: ``depth`` (H, W) camera z (inf: nothing),
-    ``grad_w`` (H, W) the screen gradient magnitude of ``1/z`` of the triangle seen at each pixel [1/(m px)]."""
-
+    geometry: Geometry
+    lens: FisheyeLens | None
+    view: Camera
+    points: np.ndarray
+    triangles: np.ndarray
+    tri_object: np.ndarray
+    carried: np.ndarray
+    tri_id: np.ndarray
+    bary: np.ndarray
     depth: np.ndarray
     grad_w: np.ndarray
-    lens: FisheyeLens | None = None  # with a lens, both are the pinhole raster's (module docstring)
+    pose: np.ndarray  # (3, 4) [R | t] world to OpenCV camera
+    fx_fy_cx_cy: np.ndarray  # (4,) of the output image's K (the distorted camera's through a lens)
+    lens_k: np.ndarray  # (4,) k1..k4, zeros without a lens
+    K_view: np.ndarray  # (3, 3) K of the pinhole raster
+    map_col: np.ndarray  # (H, W) int64 the pinhole pixel each distorted pixel samples ((0, 0) without a lens)
+    map_row: np.ndarray
+
+    @property
+    def covered(self) -> np.ndarray:
+        return self.tri_id >= 0
 
 
 def _camera_coords(points: np.ndarray, camera: Camera) -> np.ndarray:
@@ -119,10 +132,10 @@ def _camera_coords(points: np.ndarray, camera: Camera) -> np.ndarray:
 
 
 def _project(points: np.ndarray, camera: Camera, lens: FisheyeLens | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The one projection of world points (..., 3) into output pixel coordinates: ((..., 2) (u, v), OpenCV
-    convention, pixel (column u, row v)'s centre at integer (u, v); (...,) camera z [m]). Through ``K`` and
-    ``world_to_camera`` as written to ``cameras.json`` (and the lens's distortion when ``lens`` is given);
-    every 2D motion value is made here."""
+    """World points (..., 3) -> output pixel coordinates ((..., 2) (u, v), OpenCV convention, pixel (column u,
+    row v)'s centre at integer (u, v); (...,) camera z [m]), through ``K`` and ``world_to_camera`` as written to
+    ``cameras.json`` (and the lens's distortion when ``lens`` is given): the projection
+    ``motion_kernels.point_motion`` makes for every 2D motion value, for points given in NumPy."""
     xc = _camera_coords(points, camera)
     if lens is not None:
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -138,7 +151,8 @@ def _project(points: np.ndarray, camera: Camera, lens: FisheyeLens | None = None
 def _inverse_depth_gradient(corners: np.ndarray, camera: Camera) -> np.ndarray:
     """|grad w| (k,) over the pinhole raster's pixels of ``w = 1/z`` on the planes of triangles with world
     ``corners`` (k, 3, 3): for the camera-space plane ``n . X = d`` and ``X = z K^-1 (u, v, 1)``,
-    ``1/z = n . K^-1 (u, v, 1) / d``, so ``grad w = (n^T K^-1)[:2] / d``. inf for a plane through the eye."""
+    ``1/z = n . K^-1 (u, v, 1) / d``, so ``grad w = (n^T K^-1)[:2] / d``. inf for a plane through the eye.
+    (The NumPy form of ``motion_kernels._inverse_depth_gradient``, which the passes use.)"""
     c = _camera_coords(corners, camera)
     n = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
     d = np.einsum("kd,kd->k", n, c[:, 0])
@@ -150,109 +164,103 @@ def _inverse_depth_gradient(corners: np.ndarray, camera: Camera) -> np.ndarray:
 
 def _surface(geom: Geometry, attributes: np.ndarray) -> RenderSurface:
     n = geom.points.shape[0]
-    return RenderSurface(np.asarray(geom.points, float), np.asarray(geom.triangles, np.int64), np.zeros((n, 3)),
-                         attributes, np.asarray(geom.tri_object, np.int64))
+    # contiguous float64 / int64 whatever the caller's arrays: the kernels keep one compiled signature
+    return RenderSurface(np.ascontiguousarray(geom.points, float), np.ascontiguousarray(geom.triangles, np.int64),
+                         np.zeros((n, 3)), attributes, np.asarray(geom.tri_object, np.int64))
 
 
-def carry(geom: Geometry, targets: list[np.ndarray]) -> _Carried:
-    """Re-rasterise ``geom`` at its camera's pixel centres and carry each of ``targets`` (vertex positions
-    (n, 3) of other frames, same triangles) to the material points its pixels see."""
+_NO_MAP = np.zeros((0, 0), np.int64)
+
+
+def frame_raster(geom: Geometry, targets=()) -> FrameRaster:
+    """Re-rasterise ``geom`` at its camera's pixel centres, carrying each of ``targets`` (vertex positions
+    (n, 3) of other frames, same triangles) through the near-plane cut, with its visible surface."""
     n = geom.points.shape[0]
     for points in targets:
         if np.shape(points) != (n, 3):
-            raise ValueError(f"carry: expected target vertex positions of shape ({n}, 3), found {np.shape(points)}")
-    attributes = np.concatenate([np.asarray(p, float) for p in targets], axis=1) if targets else np.zeros((n, 0))
-    lens = lens_of(geom.camera, geom.lens_k)
-    surface, raster = rasterise(_surface(geom, attributes), geom.camera if lens is None else lens.pinhole, 1, False, 0)
-    tri_id, bary = raster.tri_id, raster.bary
-    if lens is not None:  # the distorted image's pixels: the remap of every other pass
-        tri_id, bary = lens.remap_nearest(tri_id), lens.remap_nearest(bary)
-    covered = tri_id >= 0
-    tri = tri_id[covered]
-    bary = bary[covered]
-    corners = surface.triangles[tri]  # (k, 3) clipped-surface vertex ids
-    X = np.einsum("kc,kcd->kd", bary, surface.points[corners])
-    carried, corner_points = [], []
-    for j in range(len(targets)):
-        P2 = surface.attributes[:, 3 * j:3 * j + 3]
-        carried.append(np.einsum("kc,kcd->kd", bary, P2[corners]))
-        corner_points.append(P2[corners])
-    return _Carried(covered, surface.tri_material[tri], X, carried, corner_points)
-
-
-def visible_surface(geom: Geometry) -> _Visible:
-    """Frame ``geom``'s depth and per-pixel inverse-depth gradient, for :func:`occluded_in`."""
+            raise ValueError(f"frame_raster: expected target vertex positions of shape ({n}, 3), found "
+                             f"{np.shape(points)}")
+    attributes = np.concatenate([np.asarray(p, float) for p in targets], axis=1) if len(targets) else np.zeros((n, 0))
     lens = lens_of(geom.camera, geom.lens_k)
     view = geom.camera if lens is None else lens.pinhole
-    surface, raster = rasterise(_surface(geom, np.zeros((geom.points.shape[0], 0))), view, 1, False, 0)
+    surface, raster = rasterise(_surface(geom, attributes), view, 1, False, 0)
+    pose = np.ascontiguousarray(world_to_camera(view)[:3, :])
+    K_view = intrinsics(view)
+    grad_tri = np.empty(surface.triangles.shape[0])
+    triangle_gradients(surface.triangles, surface.points, pose, np.linalg.inv(K_view), grad_tri)
     covered = raster.tri_id >= 0
-    grad = np.zeros(raster.depth.shape)
-    grad[covered] = _inverse_depth_gradient(surface.points[surface.triangles[raster.tri_id[covered]]], view)
-    return _Visible(raster.depth, grad, lens)
+    grad_w = np.zeros(raster.depth.shape)
+    grad_w[covered] = grad_tri[raster.tri_id[covered]]
+    tri_id, bary = raster.tri_id, raster.bary
+    if lens is None:
+        K, lens_k, map_col, map_row = K_view, np.zeros(4), _NO_MAP, _NO_MAP
+    else:  # the distorted image's pixels: the remap of every other pass
+        tri_id, bary = lens.remap_nearest(tri_id), lens.remap_nearest(bary)
+        K, lens_k = lens.K, np.asarray(lens.k, float)
+        map_col, map_row = np.rint(lens.map_u).astype(np.int64), np.rint(lens.map_v).astype(np.int64)
+    return FrameRaster(geom, lens, view, surface.points, surface.triangles, surface.tri_material,
+                       surface.attributes, tri_id, bary, raster.depth, grad_w, pose,
+                       np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]), lens_k, K_view, map_col, map_row)
 
 
-def occluded_in(X2: np.ndarray, corners2: np.ndarray, visible: _Visible, camera: Camera) -> np.ndarray:
-    """(k,) bool: world points ``X2`` (k, 3) lying on triangles with corners ``corners2`` (k, 3, 3) are hidden
-    in the frame whose visible surface is ``visible`` seen by ``camera`` (module docstring, step 3)."""
-    if visible.lens is not None:
-        return _occluded_through_lens(X2, corners2, visible, camera)
-    h, w = visible.depth.shape
-    xc = _camera_coords(X2, camera)
-    z = xc[:, 2]
-    K = intrinsics(camera)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # the pinhole raster's pixel position (the raster is undistorted whatever _project adds)
-        u = K[0, 0] * xc[:, 0] / z + K[0, 2]
-        v = K[1, 1] * xc[:, 1] / z + K[1, 2]
-    inside = ((z >= camera.near) & (z <= camera.far) & (u >= -0.5) & (u < w - 0.5) & (v >= -0.5) & (v < h - 0.5))
-    occluded = ~inside
-    k = np.flatnonzero(inside)
-    col = np.floor(u[k] + 0.5).astype(np.int64)
-    row = np.floor(v[k] + 0.5).astype(np.int64)
-    w_point = 1.0 / z[k]
-    w_seen = 1.0 / visible.depth[row, col]  # 0 where nothing is seen: never in front
-    r = np.hypot(u[k] - col, v[k] - row)
-    grad_A = _inverse_depth_gradient(corners2[k], camera)
-    with np.errstate(invalid="ignore"):
-        tolerance = (grad_A + visible.grad_w[row, col]) * r + W_ROUNDING * w_point
-        occluded[k] = w_point < w_seen - np.nan_to_num(tolerance, nan=np.inf)
-    return occluded
+def carried_through_cut(source: FrameRaster, points: np.ndarray, corners: np.ndarray | None = None) -> np.ndarray:
+    """Vertex positions ``points`` (n, 3) of another frame on ``source``'s clipped surface (m, 3) float64: the
+    cut vertices interpolated along their edges as ``clip_near`` interpolates ``source.carried``. When the only
+    vertices read are ``corners`` (clipped vertex ids) and none of them is a cut vertex, the cut vertices are
+    left NaN instead (no cut to redo)."""
+    points = np.asarray(points, float)
+    n, m = points.shape[0], source.points.shape[0]
+    if m == n:  # nothing was cut
+        return points
+    if corners is not None and (corners.size == 0 or corners.max() < n):
+        return np.concatenate([points, np.full((m - n, 3), np.nan)])
+    geom = source.geometry
+    return clip_near(np.asarray(geom.points, float), np.zeros((n, 3)), points,
+                     np.asarray(geom.triangles, np.int64), np.asarray(geom.tri_object, np.int64), source.view)[2]
 
 
-def _occluded_through_lens(X2, corners2, visible: _Visible, camera: Camera) -> np.ndarray:
-    """:func:`occluded_in` through ``visible.lens``: off-screen in distorted pixels, the inverse-depth test in
-    the pinhole raster at the pinhole pixel sampled by ``X2``'s nearest distorted pixel (module docstring)."""
-    lens = visible.lens
-    h, w = lens.height, lens.width
-    xc = _camera_coords(X2, camera)
-    z = xc[:, 2]
-    ok = z > 0.0
-    uv = np.full((z.size, 2), np.nan)
-    uv[ok] = lens.project(xc[ok])
-    with np.errstate(invalid="ignore"):
-        inside = (ok & (z >= camera.near) & (z <= camera.far) & (uv[:, 0] >= -0.5) & (uv[:, 0] < w - 0.5)
-                  & (uv[:, 1] >= -0.5) & (uv[:, 1] < h - 0.5))
-    occluded = ~inside
-    k = np.flatnonzero(inside)
-    q_col = np.floor(uv[k, 0] + 0.5).astype(np.int64)
-    q_row = np.floor(uv[k, 1] + 0.5).astype(np.int64)
-    col = np.rint(lens.map_u[q_row, q_col]).astype(np.int64)  # the pinhole pixel remap_nearest gives q
-    row = np.rint(lens.map_v[q_row, q_col]).astype(np.int64)
-    K_p = intrinsics(lens.pinhole)
-    u_p = K_p[0, 0] * xc[k, 0] / z[k] + K_p[0, 2]  # X2's undistorted position in the pinhole raster
-    v_p = K_p[1, 1] * xc[k, 1] / z[k] + K_p[1, 2]
-    w_point = 1.0 / z[k]
-    w_seen = 1.0 / visible.depth[row, col]  # 0 where nothing is seen: never in front
-    r = np.hypot(u_p - col, v_p - row)
-    grad_A = _inverse_depth_gradient(corners2[k], lens.pinhole)
-    with np.errstate(invalid="ignore"):
-        tolerance = (grad_A + visible.grad_w[row, col]) * r + W_ROUNDING * w_point
-        occluded[k] = w_point < w_seen - np.nan_to_num(tolerance, nan=np.inf)
-    return occluded
+def _target_arguments(source: FrameRaster, triangles: np.ndarray, points2: np.ndarray, target: FrameRaster) -> tuple:
+    """The arguments of ``motion_kernels.point_motion`` / ``pixel_motion`` from ``pose`` to ``grad_A``: both
+    cameras, ``target``'s visible surface and the inverse-depth gradient of ``triangles`` (of ``source``'s
+    clipped surface) at ``target``'s vertex positions ``points2`` (in ``target``'s raster)."""
+    camera = target.geometry.camera
+    grad_A = np.empty(triangles.shape[0])
+    triangle_gradients(triangles, points2, target.pose, np.linalg.inv(target.K_view), grad_A)
+    return (source.pose, source.fx_fy_cx_cy, source.lens_k, source.lens is not None, target.pose,
+            target.fx_fy_cx_cy, target.lens_k, target.lens is not None, float(camera.near), float(camera.far),
+            target.K_view, target.depth, target.grad_w, target.map_col, target.map_row, grad_A)
 
 
-def flow_between(geom_t: Geometry, geom_t2: Geometry, cam_t: Camera | None = None, cam_t2: Camera | None = None,
-                 visible_t2: _Visible | None = None):
+def points_motion(source: FrameRaster, tri: np.ndarray, bary: np.ndarray, points2: np.ndarray,
+                  target: FrameRaster) -> tuple:
+    """The motion of ``source``'s material points (clipped triangle ``tri`` (k,), barycentrics ``bary`` (k, 3))
+    to ``target``'s frame, whose vertex positions on ``source``'s clipped surface are ``points2`` (m, 3):
+    (``uv`` (k, 2) in ``source``'s pixels, ``uv2`` (k, 2) in ``target``'s, ``X``, ``X2`` (k, 3) world [m],
+    ``occluded`` (k,)); module docstring, steps 1 to 3 (``motion_kernels.point_motion``)."""
+    k = tri.shape[0]
+    uv, uv2, X, X2 = np.empty((k, 2)), np.empty((k, 2)), np.empty((k, 3)), np.empty((k, 3))
+    occluded = np.zeros(k, bool)
+    points2 = np.ascontiguousarray(points2, float)
+    triangles = source.triangles[np.asarray(tri, np.int64)]  # point i on triangle i: gradients of these only
+    point_motion(np.arange(k, dtype=np.int64), np.ascontiguousarray(bary, float), triangles, source.points, points2,
+                 *_target_arguments(source, triangles, points2, target), uv, uv2, X, X2, occluded)
+    return uv, uv2, X, X2, occluded
+
+
+def motion_to(source: FrameRaster, j: int, target: FrameRaster) -> tuple:
+    """(flow, occluded, scene_flow) of ``source``'s pixels to ``target``'s frame, whose vertex positions
+    ``source`` carries as its ``j``-th target (see :func:`flow_between`)."""
+    h, w = source.tri_id.shape
+    flow = np.empty((h, w, 2), np.float32)
+    scene_flow = np.empty((h, w, 3), np.float32)
+    occluded = np.empty((h, w), bool)
+    points2 = np.ascontiguousarray(source.carried[:, 3 * j:3 * j + 3])
+    pixel_motion(source.tri_id, source.bary, source.triangles, source.points, points2,
+                 *_target_arguments(source, source.triangles, points2, target), flow, scene_flow, occluded)
+    return flow, occluded, scene_flow
+
+
+def flow_between(geom_t: Geometry, geom_t2: Geometry, cam_t: Camera | None = None, cam_t2: Camera | None = None):
     """Optical flow, occlusion and scene flow of frame ``t``'s pixels to frame ``t2``.
 
     Parameters
@@ -261,8 +269,6 @@ def flow_between(geom_t: Geometry, geom_t2: Geometry, cam_t: Camera | None = Non
         The two frames' render geometry (same triangles).
     cam_t, cam_t2 : Camera, optional
         The cameras (default: each geometry's own).
-    visible_t2 : optional
-        ``visible_surface(geom_t2)`` when already computed.
 
     Returns
     -------
@@ -277,27 +283,8 @@ def flow_between(geom_t: Geometry, geom_t2: Geometry, cam_t: Camera | None = Non
     cam_t2 = geom_t2.camera if cam_t2 is None else cam_t2
     if geom_t.triangles.shape != geom_t2.triangles.shape or not np.array_equal(geom_t.triangles, geom_t2.triangles):
         raise ValueError("flow_between: the two frames' geometries have different triangles (not one sequence)")
-    geom = Geometry(geom_t.points, geom_t.triangles, geom_t.tri_object, cam_t, geom_t.lens_k)
-    carried = carry(geom, [geom_t2.points])
-    if visible_t2 is None:
-        visible_t2 = visible_surface(Geometry(geom_t2.points, geom_t2.triangles, geom_t2.tri_object, cam_t2,
-                                              geom_t2.lens_k))
-    return _motion_arrays(carried, 0, cam_t, cam_t2, visible_t2, lens_of(cam_t, geom_t.lens_k))
-
-
-def _motion_arrays(carried: _Carried, j: int, cam_t: Camera, cam_t2: Camera, visible_t2: _Visible,
-                   lens_t: FisheyeLens | None = None):
-    """(flow, occluded, scene_flow) of target ``j`` of ``carried`` (see :func:`flow_between`); ``lens_t`` frame
-    ``t``'s lens (frame ``t2``'s is ``visible_t2.lens``)."""
-    h, w = carried.covered.shape
-    X, X2 = carried.X, carried.targets[j]
-    flow = np.full((h, w, 2), np.nan, np.float32)
-    scene_flow = np.full((h, w, 3), np.nan, np.float32)
-    occluded = np.zeros((h, w), bool)
-    flow[carried.covered] = _project(X2, cam_t2, visible_t2.lens)[0] - _project(X, cam_t, lens_t)[0]
-    scene_flow[carried.covered] = X2 - X
-    occluded[carried.covered] = occluded_in(X2, carried.corners[j], visible_t2, cam_t2)
-    return flow, occluded, scene_flow
+    source = frame_raster(replace(geom_t, camera=cam_t), [geom_t2.points])
+    return motion_to(source, 0, frame_raster(replace(geom_t2, camera=cam_t2)))
 
 
 def no_neighbour(covered: np.ndarray) -> tuple:
@@ -307,22 +294,19 @@ def no_neighbour(covered: np.ndarray) -> tuple:
     return (np.full((h, w, 2), np.nan, np.float32), covered.copy(), np.full((h, w, 3), np.nan, np.float32))
 
 
-def neighbour_flows(geom: Geometry, previous: Geometry | None, following: Geometry | None,
-                    visible_previous: _Visible | None = None, visible_following: _Visible | None = None) -> dict:
-    """Frame ``geom``'s backward (to ``previous``) and forward (to ``following``) motion from one re-raster:
-    a dict with the pass file names ``flow_forward``, ``flow_backward``, ``occluded_forward``,
-    ``occluded_backward``, ``scene_flow_forward``, ``scene_flow_backward``; a missing neighbour (None) gives
-    NaN motion and every seen pixel occluded."""
-    neighbours = [g for g in (previous, following) if g is not None]
-    carried = carry(geom, [g.points for g in neighbours])
+def neighbour_flows(source: FrameRaster, previous: FrameRaster | None, following: FrameRaster | None) -> dict:
+    """A frame's backward (to ``previous``) and forward (to ``following``) motion; ``source`` carries the
+    vertex positions of the neighbours that exist, previous first (:func:`frame_raster`): a dict with the pass
+    file names ``flow_forward``, ``flow_backward``, ``occluded_forward``, ``occluded_backward``,
+    ``scene_flow_forward``, ``scene_flow_backward``; a missing neighbour (None) gives NaN motion and every seen
+    pixel occluded."""
     out = {}
     j = 0
-    for name, other, visible in (("backward", previous, visible_previous), ("forward", following, visible_following)):
+    for name, other in (("backward", previous), ("forward", following)):
         if other is None:
-            arrays = no_neighbour(carried.covered)
+            arrays = no_neighbour(source.covered)
         else:
-            visible = visible_surface(other) if visible is None else visible
-            arrays = _motion_arrays(carried, j, geom.camera, other.camera, visible, lens_of(geom.camera, geom.lens_k))
+            arrays = motion_to(source, j, other)
             j += 1
         out[f"flow_{name}"], out[f"occluded_{name}"], out[f"scene_flow_{name}"] = arrays
     return out

@@ -26,9 +26,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from tissuerender.groundtruth.cameras import world_to_camera
+from tissuerender.groundtruth.pass_kernels import camera_normals, interpolate_pixels
 from tissuerender.renderer.camera import Camera
 from tissuerender.renderer.gbuffer import RenderSurface, merge_objects, rasterise
-from tissuerender.groundtruth.cameras import world_to_camera
 from tissuerender.scene.schema import PASSES as PASS_NAMES
 from tissuerender.stages import StageRecorder, recorder_or_new
 
@@ -49,11 +50,6 @@ def _pass_surface(objects, rest) -> RenderSurface:
     return RenderSurface(surface.points, surface.triangles, surface.normals, attribute, surface.tri_material)
 
 
-def _interpolate(values: np.ndarray, triangles: np.ndarray, tri: np.ndarray, bary: np.ndarray) -> np.ndarray:
-    """``sum_i b_i values[corner_i]`` at the covered pixels: (k, d) for ``values`` (n, d)."""
-    return np.einsum("kc,kcd->kd", bary, values[triangles[tri]])
-
-
 def ground_truth(objects, rest, camera: Camera, wanted, recorder: StageRecorder | None = None) -> dict:
     """The passes named in ``wanted`` for the frame's render ``objects`` seen by ``camera``: a dict name ->
     array at the camera's resolution (see the module docstring for each). ``rest``: per object its vertex
@@ -63,31 +59,27 @@ def ground_truth(objects, rest, camera: Camera, wanted, recorder: StageRecorder 
     h, w = int(camera.height), int(camera.width)
     with rec.run("passes.raster"):
         surface, raster = rasterise(_pass_surface(objects, rest), camera, 1, False, 0)
-    covered = raster.tri_id >= 0
-    tri = raster.tri_id[covered]
-    bary = raster.bary[covered]
     out = {}
     if "depth" in wanted:
         with rec.run("passes.depth"):
             out["depth"] = raster.depth.astype(np.float32)  # inf where nothing is hit
     if "normal" in wanted:
         with rec.run("passes.normal"):
-            n = _interpolate(surface.normals, surface.triangles, tri, bary)
-            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-            p = _interpolate(surface.points, surface.triangles, tri, bary)
-            facing_away = np.einsum("kd,kd->k", n, np.asarray(camera.position, float) - p) < 0.0
-            n[facing_away] *= -1.0  # seen from behind: the normal faces the viewer, as in shading
-            normal = np.full((h, w, 3), np.nan, np.float32)
-            normal[covered] = n @ world_to_camera(camera)[:3, :3].T
+            normal = np.empty((h, w, 3), np.float32)
+            camera_normals(np.ascontiguousarray(surface.normals, float), surface.points, surface.triangles,
+                           raster.tri_id, raster.bary, np.asarray(camera.position, float),
+                           np.ascontiguousarray(world_to_camera(camera)[:3, :3]), normal)
             out["normal"] = normal
     if "segmentation" in wanted:
         with rec.run("passes.segmentation"):
             ids = np.zeros((h, w), np.int32)
-            ids[covered] = surface.tri_material[tri] + 1
+            covered = raster.tri_id >= 0
+            ids[covered] = surface.tri_material[raster.tri_id[covered]] + 1
             out["segmentation"] = ids
     if "material_coords" in wanted:
         with rec.run("passes.material_coords"):
-            coords = np.full((h, w, 3), np.nan, np.float32)
-            coords[covered] = _interpolate(surface.attributes, surface.triangles, tri, bary)
+            coords = np.empty((h, w, 3), np.float32)
+            interpolate_pixels(np.ascontiguousarray(surface.attributes, float), surface.triangles, raster.tri_id,
+                               raster.bary, coords)
             out["material_coords"] = coords
     return out

@@ -7,9 +7,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from tissuerender.groundtruth.cameras import labels
-from tissuerender.groundtruth.motion import flow_between, neighbour_flows, visible_surface
+from tissuerender.groundtruth.motion import flow_between, frame_raster, neighbour_flows
 from tissuerender.groundtruth.output import geometry_path, pass_path, read_geometry, write_array
-from tissuerender.groundtruth.tracks import compute_tracks, write_tracks
+from tissuerender.groundtruth.tracks import Tracks, write_tracks
 from tissuerender.errors import UserError
 from tissuerender.stages import StageRecorder, recorder_or_new
 
@@ -39,47 +39,68 @@ def finish_sequence(out: Path, scene, finished, frames: int | None = None,
     exists) of a render of ``frames`` frames (default the scene's): per frame ``k`` the forward and backward
     flow, occlusion and scene flow when both neighbours are finished (a neighbour outside ``1..frames`` gives
     NaN), and ``tracks.npz`` with its TAP-Vid layouts when every frame is finished. Returns the paths written.
-    Timed under ``passes.flow`` / ``passes.scene_flow`` and ``passes.tracks``."""
+
+    One pass over the frames in order: each frame is re-rasterised once (``motion.frame_raster``, carrying its
+    neighbours' vertex positions when its flows are asked) and that raster serves its flows, its neighbours'
+    flows towards it and its column of the tracks; at most three frames' rasters (and the tracks' query
+    frames') are held at a time. Timed under ``passes.flow`` / ``passes.scene_flow`` (the rasters, the flows
+    and their files) and ``passes.tracks`` (the tracks and their files; the rasters too when no flow is asked)."""
     rec = recorder_or_new(recorder)
     wanted = [p for p in scene.output.passes if p in MOTION_PASSES]
     frames = scene.output.frames if frames is None else int(frames)
     finished = set(finished)
-    written = []
     flow_names = [name for p in ("flow", "scene_flow") if p in wanted for name in FLOW_FILES[p]]
+    flow_frames = set()
     if flow_names:
-        stage = "passes.flow" if "flow" in wanted else "passes.scene_flow"
-        cache: dict = {}
+        flow_frames = {k for k in finished if all(j in finished for j in (k - 1, k + 1) if 1 <= j <= frames)}
+    tracking = "tracks" in wanted and all(k in finished for k in range(1, frames + 1))
+    needed = flow_frames | {j for k in flow_frames for j in (k - 1, k + 1) if 1 <= j <= frames}
+    if tracking:
+        needed |= set(range(1, frames + 1))
+    stage = ("passes.flow" if "flow" in wanted else "passes.scene_flow") if flow_frames else "passes.tracks"
+    geometries: dict = {}
+    rasters: dict = {}
 
-        def geometry(k):
-            if k not in cache:
-                cache[k] = read_geometry(out, k)
-            return cache[k]
+    def geometry(k):
+        if k not in geometries:
+            geometries[k] = read_geometry(out, k)
+        return geometries[k]
 
-        visible: dict = {}
-        for k in sorted(finished):
-            neighbours = [j for j in (k - 1, k + 1) if 1 <= j <= frames]
-            if any(j not in finished for j in neighbours):
-                continue
+    def raster(k):  # frame k's raster, carrying the neighbours that exist when its flows are asked
+        if k not in rasters:
             with rec.run(stage):
-                previous = geometry(k - 1) if k - 1 >= 1 else None
-                following = geometry(k + 1) if k + 1 <= frames else None
-                for j, g in ((k - 1, previous), (k + 1, following)):
-                    if g is not None and j not in visible:
-                        visible[j] = visible_surface(g)
-                arrays = neighbour_flows(geometry(k), previous, following, visible.get(k - 1), visible.get(k + 1))
-            for name in flow_names:
-                written.append(write_array(pass_path(out, name, k), arrays[name]))
-            for j in [j for j in cache if j < k]:  # frames are visited in order: earlier ones are done with
-                cache.pop(j)
-                visible.pop(j, None)
-    if "tracks" in wanted and all(k in finished for k in range(1, frames + 1)):
+                targets = [geometry(j).points for j in (k - 1, k + 1) if 1 <= j <= frames] if k in flow_frames else []
+                rasters[k] = frame_raster(geometry(k), targets)
+        return rasters[k]
+
+    tracks = None
+    if tracking:
+        bodies = [entry["id"] - 1 for entry in labels(scene) if entry["kind"] == "body"]
+        try:
+            tracks = Tracks(frames, lambda t: raster(t + 1), bodies, scene.output.track_points, scene.seed,
+                            scene.output.track_queries)
+        except ValueError as e:
+            raise UserError(f"{scene.path}: output.{e}") from None
+    queried = set(rasters)  # the query frames' rasters stay for every column of the tracks
+    written = []
+    for k in sorted(needed):
+        current = raster(k)
+        if tracks is not None:
+            with rec.run("passes.tracks"):
+                tracks.add_frame(k - 1, current)
+        for j in (k - 1, k):  # a frame's flows once its following frame's raster exists
+            if j in flow_frames and (j + 1 > frames or j + 1 in rasters):
+                with rec.run(stage):
+                    arrays = neighbour_flows(rasters[j], rasters[j - 1] if j > 1 else None,
+                                             rasters[j + 1] if j < frames else None)
+                    for name in flow_names:
+                        written.append(write_array(pass_path(out, name, j), arrays[name]))
+                flow_frames.discard(j)
+        for j in [j for j in rasters if j < k - 1 and j not in queried]:  # no flow needs them any more
+            rasters.pop(j)
+            if tracks is None:  # write_tracks reads every frame's camera
+                geometries.pop(j, None)
+    if tracks is not None:
         with rec.run("passes.tracks"):
-            geometries = [read_geometry(out, k) for k in range(1, frames + 1)]
-            bodies = [entry["id"] - 1 for entry in labels(scene) if entry["kind"] == "body"]
-            try:
-                tracks = compute_tracks(geometries, bodies, scene.output.track_points, scene.seed,
-                                        scene.output.track_queries)
-            except ValueError as e:
-                raise UserError(f"{scene.path}: output.{e}") from None
-            written += write_tracks(out, tracks, geometries, scene.name)
+            written += write_tracks(out, tracks.arrays(), [geometry(k) for k in range(1, frames + 1)], scene.name)
     return written

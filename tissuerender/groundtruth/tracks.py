@@ -4,10 +4,11 @@ material points (triangle and barycentrics of the render surface) through every 
 Query points are given in the scene (``[output] track_queries = [[t, y, x], ...]``: frame index from 0, pixel
 row and column of a pixel that sees a surface in that frame; the track starts at the point that pixel sees, as
 every pass shows it), or else ``n`` pixel centres drawn without replacement (``numpy.random.default_rng(seed)``, the
-scene seed) from the pixels of frame 1 that see a simulated body, in the raster of ``motion.carry`` (pixel
+scene seed) from the pixels of frame 1 that see a simulated body, in the raster of ``motion.frame_raster`` (pixel
 centres, as every pass). Each query's material point is the point that pixel sees; in frame ``k`` it is
 ``X_k = sum_i b_i P_k,i`` over the same triangle (``motion`` module docstring, step 1), projected through
-``motion._project`` (through the lens, if any: distorted pixels); it is occluded in frame ``k`` by ``motion.occluded_in`` (the flow's occlusion test).
+``motion.points_motion`` (through the lens, if any: distorted pixels), which also makes the flow's occlusion
+test. Each frame's raster is made once and shared with the flows (``sequence.finish_sequence``).
 
 Files (``write_tracks``), in the output folder:
 
@@ -35,61 +36,74 @@ from PIL import Image
 
 from tissuerender.files import write_atomic
 from tissuerender.groundtruth.cameras import intrinsics, world_to_camera
-from tissuerender.groundtruth.motion import Geometry, _project, carry, lens_of, occluded_in, visible_surface
+from tissuerender.groundtruth.motion import FrameRaster, Geometry, carried_through_cut, lens_of, points_motion
 
-CHUNK = 8  # frames carried per re-raster of frame 1 (each adds 3 float64 attributes per vertex)
-
-
-def sample_queries(first: Geometry, body_objects, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def sample_queries(first: FrameRaster, body_objects, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(indices into frame 1's covered pixels (row-major) of the chosen queries (N,), their (row, col) (N, 2)):
     ``n`` pixels seeing a render object in ``body_objects``, drawn without replacement, in pixel order."""
-    carried = carry(first, [])
-    rows, cols = np.nonzero(carried.covered)
-    tissue = np.flatnonzero(np.isin(carried.obj, list(body_objects)))
+    covered = first.covered
+    rows, cols = np.nonzero(covered)
+    tissue = np.flatnonzero(np.isin(first.tri_object[first.tri_id[covered]], list(body_objects)))
     rng = np.random.default_rng(seed)
     chosen = np.sort(rng.choice(tissue, size=min(int(n), tissue.size), replace=False)) if tissue.size else tissue
     return chosen, np.stack([rows[chosen], cols[chosen]], axis=1)
 
 
-def compute_tracks(geometries: list[Geometry], body_objects, n: int, seed: int, queries=None) -> dict:
-    """Tracks through ``geometries`` (frames 1..T) of ``n`` query points sampled on frame 1's visible tissue, or
-    of the given ``queries`` ([t, y, x]: frame index from 0, pixel row and column; ``[output] track_queries``):
-    the ``tracks.npz`` arrays (module docstring). A given query whose pixel sees nothing is a ValueError."""
-    frames = len(geometries)
-    if queries is None or len(queries) == 0:
-        chosen, pixels = sample_queries(geometries[0], body_objects, n, seed)
-        groups = [(0, np.arange(chosen.size), chosen)]
-        query = np.concatenate([np.zeros((chosen.size, 1)), pixels.astype(float)], axis=1)
-    else:
-        query = np.asarray(queries, float).reshape(-1, 3)
-        groups = []
-        for t in np.unique(query[:, 0]).astype(int):
-            rows = np.flatnonzero(query[:, 0] == t)
-            covered = carry(geometries[t], []).covered
-            y, x = query[rows, 1].astype(np.int64), query[rows, 2].astype(np.int64)
-            blank = ~covered[y, x]
-            if blank.any():
-                i = rows[np.argmax(blank)]
-                raise ValueError(f"track_queries[{i}] = {query[i].astype(int).tolist()}: the pixel sees nothing in "
-                                 f"frame index {t}")
-            order = np.cumsum(covered.ravel()) - 1  # pixel -> index among the covered pixels (row-major)
-            groups.append((t, rows, order[y * covered.shape[1] + x]))
-    count = query.shape[0]
-    points_2d = np.zeros((count, frames, 2))
-    points_3d = np.zeros((count, frames, 3))
-    occluded = np.zeros((count, frames), bool)
-    for start in range(0, frames, CHUNK):
-        chunk = geometries[start:start + CHUNK]
-        visible = [visible_surface(geom) for geom in chunk]
-        for t, rows, chosen in groups:
-            carried = carry(geometries[t], [g.points for g in chunk])
-            for j, geom in enumerate(chunk):
-                X = carried.targets[j][chosen]
-                points_3d[rows, start + j] = X
-                points_2d[rows, start + j] = _project(X, geom.camera, lens_of(geom.camera, geom.lens_k))[0]
-                occluded[rows, start + j] = occluded_in(X, carried.corners[j][chosen], visible[j], geom.camera)
-    return {"query_points": query.astype(np.float32), "points_2d": points_2d.astype(np.float32),
-            "points_3d": points_3d.astype(np.float32), "occluded": occluded}
+class Tracks:
+    """Tracks through a sequence of ``frames`` frames, filled one frame at a time (:meth:`add_frame`, any order)
+    from each frame's :class:`motion.FrameRaster`, which the flows share; :meth:`arrays` gives the ``tracks.npz``
+    arrays (module docstring).
+
+    ``raster_of(t)`` gives the raster of frame index ``t`` (from 0) for the frames that hold query points:
+    frame 0 when ``n`` queries are sampled on its visible tissue, else the frames of the given ``queries``
+    ([t, y, x]: frame index from 0, pixel row and column; ``[output] track_queries``). A given query whose
+    pixel sees nothing is a ValueError."""
+
+    def __init__(self, frames: int, raster_of, body_objects, n: int, seed: int, queries=None):
+        self.groups = []  # (query frame's raster, rows of the queries, their clipped triangle (N,), barycentrics)
+        if queries is None or len(queries) == 0:
+            first = raster_of(0)
+            chosen, pixels = sample_queries(first, body_objects, n, seed)
+            self._add_group(first, np.arange(chosen.size), chosen)
+            query = np.concatenate([np.zeros((chosen.size, 1)), pixels.astype(float)], axis=1)
+        else:
+            query = np.asarray(queries, float).reshape(-1, 3)
+            for t in np.unique(query[:, 0]).astype(int):
+                rows = np.flatnonzero(query[:, 0] == t)
+                source = raster_of(t)
+                covered = source.covered
+                y, x = query[rows, 1].astype(np.int64), query[rows, 2].astype(np.int64)
+                blank = ~covered[y, x]
+                if blank.any():
+                    i = rows[np.argmax(blank)]
+                    raise ValueError(f"track_queries[{i}] = {query[i].astype(int).tolist()}: the pixel sees nothing "
+                                     f"in frame index {t}")
+                order = np.cumsum(covered.ravel()) - 1  # pixel -> index among the covered pixels (row-major)
+                self._add_group(source, rows, order[y * covered.shape[1] + x])
+        count = query.shape[0]
+        self.query = query
+        self.points_2d = np.zeros((count, frames, 2))
+        self.points_3d = np.zeros((count, frames, 3))
+        self.occluded = np.zeros((count, frames), bool)
+
+    def _add_group(self, source: FrameRaster, rows: np.ndarray, chosen: np.ndarray) -> None:
+        covered = source.covered
+        self.groups.append((source, rows, np.ascontiguousarray(source.tri_id[covered][chosen]),
+                            np.ascontiguousarray(source.bary[covered][chosen])))
+
+    def add_frame(self, k: int, target: FrameRaster) -> None:
+        """Column ``k`` (frame index from 0) from that frame's raster: each query's material point
+        ``X_k = sum_i b_i P_k,i``, its pixel and its occlusion (``motion.points_motion``)."""
+        for source, rows, tri, bary in self.groups:
+            points_k = carried_through_cut(source, target.geometry.points, source.triangles[tri])
+            _, uv2, _, X2, occluded = points_motion(source, tri, bary, points_k, target)
+            self.points_3d[rows, k] = X2
+            self.points_2d[rows, k] = uv2
+            self.occluded[rows, k] = occluded
+
+    def arrays(self) -> dict:
+        return {"query_points": self.query.astype(np.float32), "points_2d": self.points_2d.astype(np.float32),
+                "points_3d": self.points_3d.astype(np.float32), "occluded": self.occluded}
 
 
 def _video(out: Path, frames: int, width: int, height: int) -> np.ndarray:
