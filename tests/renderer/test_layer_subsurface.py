@@ -18,8 +18,8 @@ def _slab(optics):
     s = 0.1
     top = np.array([[-s, -s, 0.0], [s, -s, 0.0], [s, s, 0.0], [-s, s, 0.0]])
     bottom = top - [0.0, 0.0, GAP]
-    return [RenderObject(points=top, triangles=np.array([[0, 1, 2], [0, 2, 3]]), normals=np.tile([0.0, 0.0, 1.0], (4, 1)),
-                         uv=None, material="colon_mucosa", optics=optics),
+    return [RenderObject(points=top, triangles=np.array([[0, 1, 2], [0, 2, 3]]),
+                         normals=np.tile([0.0, 0.0, 1.0], (4, 1)), uv=None, material="colon_mucosa", optics=optics),
             RenderObject(points=bottom, triangles=np.array([[0, 2, 1], [0, 3, 2]]),
                          normals=np.tile([0.0, 0.0, -1.0], (4, 1)), uv=None, material="colon_mucosa", optics=optics)]
 

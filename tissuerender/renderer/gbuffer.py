@@ -193,9 +193,9 @@ def textured_surface(optics, mat, uv, albedo, n, alpha, footprint=None):
     world axes the UVs were taken along), which is the surface's tangent plane on the flat faces the
     projection is made for. The roughness map (0.7 ... 1.3 x, following the mottle) scales ``alpha`` and
     is returned as a factor for the granular layer's roughness (1 where untextured). With ``footprint`` (k,) in UV
-    units (:func:`sample_footprint` [m] times the triangle's :func:`uv_per_metre`) the lookups are mip-mapped (``materials.textures.sample_mipmapped``, one texture
-    tile of ``texture_size`` texels per ``texture_period``): a texture seen from afar reads as its average instead
-    of speckle; without it, bilinear."""
+    units (:func:`sample_footprint` [m] times the triangle's :func:`uv_per_metre`) the lookups are mip-mapped
+    (``materials.textures.sample_mipmapped``, one texture tile of ``texture_size`` texels per ``texture_period``):
+    a texture seen from afar reads as its average instead of speckle; without it, bilinear."""
     out_albedo, out_n, out_alpha = albedo.copy(), n.copy(), alpha.copy()
     factor = np.ones(albedo.shape[0])
     for mid, o in enumerate(optics):
@@ -244,7 +244,8 @@ def shading_points(surface: RenderSurface, raster: Raster, camera: Camera, optic
         uv = np.einsum("kc,kcd->kd", b, V[corner][:, :, 3:5])
         gbuffer["uv"] = uv
         # the footprint in UV units: metres on the surface times the UV map's scale there (UVs need not be metres)
-        footprint = sample_footprint(pos, n, wo, camera, raster.depth.shape[1]) * uv_per_metre(P, T, V[:, 3:5])[tri]
+        footprint = sample_footprint(pos, n, wo, camera, raster.depth.shape[1])
+        footprint = footprint * uv_per_metre(P, T, V[:, 3:5])[tri]
         albedo, n, alpha, rough_factor = textured_surface(optics, mat, uv, albedo, n, alpha, footprint)
         gbuffer.update(albedo=albedo, normal=n, roughness=alpha)
     if np.isfinite(V[:, 5:8]).any():  # a field colour map on some object (renderer.fieldmap)
