@@ -245,7 +245,12 @@ def shading_points(surface: RenderSurface, raster: Raster, camera: Camera, optic
         gbuffer["uv"] = uv
         # the footprint in UV units: metres on the surface times the UV map's scale there (UVs need not be metres)
         footprint = sample_footprint(pos, n, wo, camera, raster.depth.shape[1])
-        footprint = footprint * uv_per_metre(P, T, V[:, 3:5])[tri]
+        seen = np.zeros(T.shape[0], bool)  # only the triangles in view (a third of the default scene's)
+        seen[tri] = True
+        in_view = np.flatnonzero(seen)
+        scale = np.ones(T.shape[0])
+        scale[in_view] = uv_per_metre(P, T[in_view], V[:, 3:5])
+        footprint = footprint * scale[tri]
         albedo, n, alpha, rough_factor = textured_surface(optics, mat, uv, albedo, n, alpha, footprint)
         gbuffer.update(albedo=albedo, normal=n, roughness=alpha)
     if np.isfinite(V[:, 5:8]).any():  # a field colour map on some object (renderer.fieldmap)
