@@ -46,6 +46,12 @@ class TissueLayers:
        ``connective_thickness`` [m] and absorption ``connective_absorption`` [1/m];
     4. submucosa (vessels): diffuse ``submucosa_colour`` under it.
 
+    Layers 3 and 4 each have their own subsurface colour (``connective_sss_colour``, ``submucosa_sss_colour``,
+    linear RGB) and thickness-term attenuation (``connective_sigma``, ``submucosa_sigma`` [1/m] per channel); None
+    (the default) takes the material's ``sss_colour`` / ``sigma``, so a preset that sets none renders exactly as a
+    single-layer subsurface term. How they combine: :meth:`OpticalMaterial.subsurface_colour` and
+    :meth:`OpticalMaterial.subsurface_attenuation` (docs/renderer.md, "Per-layer subsurface colour").
+
     Layers combine through the coat's albedo (``tissuerender.renderer.bsdf.mucosa``, derivation there), so
     the stack returns what arrives in a white furnace and less with absorption. ``pattern`` names the
     procedural texture (``materials.patterns``: lobules, folds, fibres, vessel trees) baked once per material.
@@ -61,6 +67,10 @@ class TissueLayers:
     connective_thickness: float = 400e-6
     connective_absorption: tuple[float, float, float] = (250.0, 900.0, 1300.0)
     submucosa_colour: tuple[float, float, float] = (0.45, 0.10, 0.09)
+    connective_sss_colour: tuple[float, float, float] | None = None  # None: the material's sss_colour
+    connective_sigma: tuple[float, float, float] | None = None  # None: the material's sigma [1/m]
+    submucosa_sss_colour: tuple[float, float, float] | None = None
+    submucosa_sigma: tuple[float, float, float] | None = None
     texture_seed: int | None = None  # bake a procedural mucosa texture (materials.textures) when set
     texture_period: float = 0.03  # size of one texture tile in UV units (metres on procedural bodies) 
     texture_size: int = 256
@@ -153,10 +163,55 @@ class OpticalMaterial:
         return self.layers.base_albedo if self.layers is not None else self.albedo
 
     @property
+    def subsurface_colour(self) -> tuple[float, float, float]:
+        """The subsurface colour C (as an albedo, C / pi in Qian eq. 6.8) the thickness term uses.
+
+        Unlayered, or with no layer colour set: ``sss_colour``. Layered: the two tissue layers' colours weighted
+        like their diffuse colours in ``TissueLayers.base_albedo``, ``c3 (1 - e) + c4 e`` with
+        ``e = exp(-2 connective_absorption connective_thickness)`` per channel: the share of the light scattered
+        back from below that comes from under the connective layer (a layer of zero thickness: e = 1, its colour
+        has no weight)."""
+        st = self.layers
+        if st is None or (st.connective_sss_colour is None and st.submucosa_sss_colour is None):
+            return self.sss_colour
+        c3 = st.connective_sss_colour if st.connective_sss_colour is not None else self.sss_colour
+        c4 = st.submucosa_sss_colour if st.submucosa_sss_colour is not None else self.sss_colour
+        out = []
+        for a, b, s3 in zip(c3, c4, st.connective_absorption):
+            e = float(np.exp(-2.0 * s3 * st.connective_thickness))
+            out.append(a * (1.0 - e) + b * e)
+        return tuple(out)
+
+    def subsurface_attenuation(self) -> tuple[tuple[float, float, float], tuple[float, float, float], float]:
+        """``(sigma_upper, sigma_deep, depth)`` of the thickness term: along the inward path of length T the
+        light crosses the connective layer (``depth`` = its thickness, attenuation ``sigma_upper``) and then the
+        deep layer (``sigma_deep``): ``exp(-sigma_upper min(T, depth) - sigma_deep max(T - depth, 0))``
+        (:func:`layered_transmittance`). Unlayered, or with neither layer sigma set: ``(sigma, sigma, 0)``,
+        which is ``exp(-sigma T)`` to the bit (``min(T, 0) = 0`` and ``sigma_upper 0 = 0`` exactly)."""
+        st = self.layers
+        if st is None or (st.connective_sigma is None and st.submucosa_sigma is None):
+            return self.sigma, self.sigma, 0.0
+        upper = st.connective_sigma if st.connective_sigma is not None else self.sigma
+        deep = st.submucosa_sigma if st.submucosa_sigma is not None else self.sigma
+        return upper, deep, float(st.connective_thickness)
+
+    @property
     def f0(self) -> float:
         if self.metal_f0 is not None:
             return self.metal_f0
         return ((self.ior - 1.0) / (self.ior + 1.0)) ** 2
+
+
+def layered_transmittance(sigma_upper, sigma_deep, depth, T):
+    """``exp(-sigma_upper min(T, depth) - sigma_deep max(T - depth, 0))`` (k, 3) for paths T (k,) [m] through a
+    layer of thickness ``depth`` (k,) over a deep one, attenuations (k, 3) [1/m]; an infinite T transmits nothing
+    (the thickness rays found no back face: ``tissuerender.renderer.thickness``)."""
+    T = np.asarray(T, float)
+    finite = np.isfinite(T)
+    Tf = np.where(finite, T, 0.0)[:, None]
+    d = np.asarray(depth, float)[:, None]
+    tau = sigma_upper * np.minimum(Tf, d) + sigma_deep * np.maximum(Tf - d, 0.0)
+    return np.where(finite[:, None], np.exp(-tau), 0.0)
 
 
 def stack_for(albedo, absorption, thickness, pattern, seed, contrast=0.4, **coat) -> TissueLayers:
@@ -262,14 +317,21 @@ OPTICS: dict[str, OpticalMaterial] = {
 MATERIAL_KEYS = ("albedo", "roughness", "ior", "k_sss", "sigma", "sss_colour")
 LAYER_KEYS = ("coat_roughness", "coat_ior", "coat_thickness", "coat_absorption", "granular_weight",
               "granular_roughness", "connective_colour", "connective_thickness", "connective_absorption",
-              "submucosa_colour", "vessel_density", "bump")
+              "submucosa_colour", "connective_sss_colour", "connective_sigma", "submucosa_sss_colour",
+              "submucosa_sigma", "vessel_density", "bump")
+# layer keys whose None means "the material's own value" (optical_value reports that value)
+LAYER_DEFAULTS = {"connective_sss_colour": "sss_colour", "submucosa_sss_colour": "sss_colour",
+                  "connective_sigma": "sigma", "submucosa_sigma": "sigma"}
 OVERRIDABLE = MATERIAL_KEYS + LAYER_KEYS
 
 
 def optical_value(optics: OpticalMaterial, key: str):
     """The material's value of an :data:`OVERRIDABLE` key (None for a layer key of an unlayered material)."""
     if key in LAYER_KEYS:
-        return None if optics.layers is None else getattr(optics.layers, key)
+        if optics.layers is None:
+            return None
+        value = getattr(optics.layers, key)
+        return getattr(optics, LAYER_DEFAULTS[key]) if value is None and key in LAYER_DEFAULTS else value
     return optics.diffuse_albedo if key == "albedo" else getattr(optics, key)
 
 

@@ -178,7 +178,7 @@ def render_objects(world: World, scene: Scene, t: float, plan: Plan, recorder: S
                                     uv=body.surface.uv, material=body.spec.material, object_id=oid,
                                     velocity=velocity, optics=optics_for(body.spec), name=body.spec.name,
                                     vertex_albedo=None if colours is None else
-                                    vertex_albedo(colours, body.surface.points, pts)))
+                                    vertex_albedo(colours, body, world.states[i].x, pts)))
         oid += 1
     for s in world.surfaces:
         vel = np.zeros_like(s.surface.points) if "velocity_channel" in plan else None

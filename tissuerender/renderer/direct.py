@@ -129,7 +129,8 @@ def shade_fused(points, bsdfs, optics, ls: LightSamples, rays, eps, radiance, re
         shade_direct(pos[sel], n[sel], wo[sel], albedo[sel], alpha[sel], mat[sel],
                      thickness[sel] if has_sss else thickness, has_sss, rough_factor[sel], m_sel, rotation[sel],
                      int(ls.stride), phase[sel], ls.centre, ls.ln, ls.eu, ls.ev, float(eps), rays is not None, offsets,
-                     occ, t["kind"], t["f0"], t["k_sss"], t["sigma"], t["sss_colour"], t["coat"], t["coat_sigma"],
+                     occ, t["kind"], t["f0"], t["k_sss"], t["sigma"], t["sigma_deep"], t["sss_depth"],
+                     t["sss_colour"], t["coat"], t["coat_sigma"],
                      t["coat_E"], t["coat_norm"], t["schlick_E"], t["plastic"], t["plastic_t"], bool(ratio),
                      unshadowed[sel] if ratio else unshadowed, out)
 

@@ -173,16 +173,29 @@ def sample_footprint(position, normal, wo, camera: Camera, raster_width: int) ->
     return d * angle / np.maximum(np.abs(np.einsum("ij,ij->i", normal, wo)), 0.125)
 
 
+def uv_per_metre(points: np.ndarray, triangles: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """UV units per metre of each triangle (t,): ``sqrt(UV area / world area)``, the mean linear scale of its UV
+    map (a footprint is a length, the areas' ratio its square). Box-projected UVs (``box_uv``) are in metres,
+    scale 1; a mesh's own UVs in [0, 1] over an organ of 10 cm are about 10 per metre. 1 where either area is
+    zero or not finite (a degenerate triangle or UV map: nothing to scale by)."""
+    p, t = points[triangles], uv[triangles]
+    world = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    e1, e2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
+    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    ok = (world > 0.0) & (uv_area > 0.0) & np.isfinite(uv_area) & np.isfinite(world)
+    return np.where(ok, np.sqrt(np.where(ok, uv_area, 1.0) / np.where(ok, world, 1.0)), 1.0)
+
+
 def textured_surface(optics, mat, uv, albedo, n, alpha, footprint=None):
     """Albedo, shading normals and a roughness factor of layered materials that have a texture, from their
     baked mucosa texture (``materials.textures``) sampled bilinearly at the pixels' UVs, one tile per
     ``texture_period``. The tangent-space normal map is applied in the box-projection frame (the two
     world axes the UVs were taken along), which is the surface's tangent plane on the flat faces the
     projection is made for. The roughness map (0.7 ... 1.3 x, following the mottle) scales ``alpha`` and
-    is returned as a factor for the granular layer's roughness (1 where untextured). With ``footprint`` (k,) [m]
-    (:func:`sample_footprint`) the lookups are mip-mapped (``materials.textures.sample_mipmapped``, one texture
-    tile of ``texture_size`` texels per ``texture_period``): a texture seen from afar reads as its average instead
-    of speckle; without it, bilinear."""
+    is returned as a factor for the granular layer's roughness (1 where untextured). With ``footprint`` (k,) in UV
+    units (:func:`sample_footprint` [m] times the triangle's :func:`uv_per_metre`) the lookups are mip-mapped
+    (``materials.textures.sample_mipmapped``, one texture tile of ``texture_size`` texels per ``texture_period``):
+    a texture seen from afar reads as its average instead of speckle; without it, bilinear."""
     out_albedo, out_n, out_alpha = albedo.copy(), n.copy(), alpha.copy()
     factor = np.ones(albedo.shape[0])
     for mid, o in enumerate(optics):
@@ -230,7 +243,14 @@ def shading_points(surface: RenderSurface, raster: Raster, camera: Camera, optic
     if textured:
         uv = np.einsum("kc,kcd->kd", b, V[corner][:, :, 3:5])
         gbuffer["uv"] = uv
+        # the footprint in UV units: metres on the surface times the UV map's scale there (UVs need not be metres)
         footprint = sample_footprint(pos, n, wo, camera, raster.depth.shape[1])
+        seen = np.zeros(T.shape[0], bool)  # only the triangles in view (a third of the default scene's)
+        seen[tri] = True
+        in_view = np.flatnonzero(seen)
+        scale = np.ones(T.shape[0])
+        scale[in_view] = uv_per_metre(P, T[in_view], V[:, 3:5])
+        footprint = footprint * scale[tri]
         albedo, n, alpha, rough_factor = textured_surface(optics, mat, uv, albedo, n, alpha, footprint)
         gbuffer.update(albedo=albedo, normal=n, roughness=alpha)
     if np.isfinite(V[:, 5:8]).any():  # a field colour map on some object (renderer.fieldmap)

@@ -304,14 +304,17 @@ def _table1(t, plane, alpha):
 
 @njit(cache=True, parallel=True)
 def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_scale, m, rotation, stride, phase,
-                 centre, ln, eu, ev, eps, shadows, ray_offsets, occluded, kind, f0, k_sss, sigma, sss_colour, coat,
-                 coat_sigma, coat_E, coat_norm, schlick_E, plastic, plastic_t, ratio, unshadowed, out):
+                 centre, ln, eu, ev, eps, shadows, ray_offsets, occluded, kind, f0, k_sss, sigma, sigma_deep,
+                 sss_depth, sss_colour, coat, coat_sigma, coat_E, coat_norm, schlick_E, plastic, plastic_t, ratio,
+                 unshadowed, out):
     """Direct light of the area light at every point, into ``out`` (k, 3) (without the light's radiance).
 
     Per point: ``albedo`` (k, 3) and ``alpha`` (textured where the material has a bake), material id
     ``mat``, SSS ``thickness`` (used when ``has_sss``), ``granular_scale`` (the roughness map's factor
     on the granular layer), ``m`` light samples with their rotation and stride/phase. Per material:
-    ``kind`` (tissue / layered / plastic), ``f0``, ``k_sss``, ``sigma`` (3), ``sss_colour`` (3), ``coat``
+    ``kind`` (tissue / layered / plastic), ``f0``, ``k_sss``, ``sigma`` (3) and ``sigma_deep`` (3) the
+    thickness term's attenuations above and below the depth ``sss_depth`` (``OpticalMaterial.
+    subsurface_attenuation``), ``sss_colour`` (3) its colour C, ``coat``
     (coat alpha, coat ior, coat thickness, granular weight, granular alpha), ``coat_sigma`` (3), ``coat_E``
     the coat lobe's albedo table, ``coat_norm`` (3, alphas) the normalisations of the lobes under it and
     ``schlick_E`` (2, alphas, cosines) the tissue lobe's Schlick split albedo tables (``bsdf.albedo``),
@@ -340,9 +343,13 @@ def shade_direct(pos, nrm, wo, albedo, alpha, mat, thickness, has_sss, granular_
         if has_sss and kd != KIND_PLASTIC:
             th = thickness[i]
             ks = k_sss[mt]
-            tr = np.exp(-sigma[mt, 0] * th) if np.isfinite(th) else 0.0
-            tg = np.exp(-sigma[mt, 1] * th) if np.isfinite(th) else 0.0
-            tb = np.exp(-sigma[mt, 2] * th) if np.isfinite(th) else 0.0
+            # materials.optics.layered_transmittance: sigma over min(T, depth), sigma_deep beyond
+            # (depth 0: exp(-sigma T) to the bit)
+            upper = min(th, sss_depth[mt])
+            lower = max(th - sss_depth[mt], 0.0)
+            tr = np.exp(-(sigma[mt, 0] * upper + sigma_deep[mt, 0] * lower)) if np.isfinite(th) else 0.0
+            tg = np.exp(-(sigma[mt, 1] * upper + sigma_deep[mt, 1] * lower)) if np.isfinite(th) else 0.0
+            tb = np.exp(-(sigma[mt, 2] * upper + sigma_deep[mt, 2] * lower)) if np.isfinite(th) else 0.0
             dr += ks * (sss_colour[mt, 0] * INV_PI * tr - albedo[i, 0] * INV_PI)
             dg += ks * (sss_colour[mt, 1] * INV_PI * tg - albedo[i, 1] * INV_PI)
             db += ks * (sss_colour[mt, 2] * INV_PI * tb - albedo[i, 2] * INV_PI)

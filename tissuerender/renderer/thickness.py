@@ -13,7 +13,8 @@ def thickness_reach(optics, bsdfs) -> float:
     """How far the thickness rays need to go: exp(-sigma T) < 1e-4 beyond T = ln(1e4) / sigma, so the rays
     stop there (thickness inf), which prunes most of the traversal through a large organ and changes no
     visible value. 0 when no material scatters below its surface."""
-    sigmas = [min(o.sigma) for o, bsdf in zip(optics, bsdfs) if o.k_sss > 0.0 and bsdf.subsurface]
+    sigmas = [min(min(o.subsurface_attenuation()[0]), min(o.subsurface_attenuation()[1]))
+              for o, bsdf in zip(optics, bsdfs) if o.k_sss > 0.0 and bsdf.subsurface]
     return np.log(1e4) / max(min(sigmas), 1e-9) if sigmas else 0.0
 
 

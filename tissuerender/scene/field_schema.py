@@ -2,10 +2,12 @@
 ``tissuerender.field_colours`` computes the field, ``tissuerender.renderer.fieldmap`` draws it).
 
 ``[objects.field_colours]``: ``field`` (``"displacement"``: the magnitude of each surface point's displacement from
-rest [m]), ``colormap`` (a matplotlib colormap, default ``"viridis"``) and ``range = [low, high]``, the field values
-drawn at the colormap's two ends (clamped beyond them); the render's ``manifest.json`` records it as the colour
-bar's scale. Without ``range`` each frame is scaled from 0 to its own largest value (the colour bar then differs
-from frame to frame, and the manifest says so).
+rest [m]; ``"displacement_x"``, ``_y``, ``_z``: one signed component [m]; ``"von_mises"``: the von Mises equivalent
+of the Cauchy stress of the body's constitutive model [Pa], volume-averaged onto the surface), ``colormap`` (a
+matplotlib colormap, default ``"viridis"``) and ``range = [low, high]``, the field values drawn at the colormap's two
+ends (clamped beyond them); the render's ``manifest.json`` records it, with the field's unit, as the colour bar's
+scale. Without ``range`` each frame is scaled from 0 (or its smallest value, when negative) to its own largest value
+(the colour bar then differs from frame to frame, and the manifest says so).
 """
 from __future__ import annotations
 
@@ -13,7 +15,8 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-FIELDS = {"displacement": "m"}  # field name -> unit
+FIELDS = {"displacement": "m", "displacement_x": "m", "displacement_y": "m", "displacement_z": "m",
+          "von_mises": "Pa"}  # field name -> unit (tissuerender.field_colours computes each)
 
 
 class _Strict(BaseModel):
@@ -22,11 +25,13 @@ class _Strict(BaseModel):
 
 class FieldColours(_Strict):
     field: Literal[tuple(FIELDS)] = Field(description=(  # type: ignore[valid-type]
-        "the per-vertex field drawn: displacement = |x - X| of each surface point [m]"))
+        "the per-vertex field drawn: displacement = |x - X| of each surface point [m]; displacement_x, _y, _z = one "
+        "signed component of x - X [m]; von_mises = von Mises equivalent of the Cauchy stress of the body's "
+        "constitutive model [Pa], from each tet's deformation gradient, averaged onto the surface by rest volume"))
     colormap: str = Field("viridis", description="matplotlib colormap name (e.g. viridis, magma, cividis)")
     range: Annotated[list[Annotated[float, Field(ge=-1e12, le=1e12)]], Field(min_length=2, max_length=2)] | None = \
         Field(None, description=("field values at the colormap's low and high ends (low < high); default per frame: "
-                                 "0 to its maximum"))
+                                 "min(0, its minimum) to its maximum"))
 
     @field_validator("colormap")
     @classmethod
@@ -46,4 +51,5 @@ class FieldColours(_Strict):
     def legend(self) -> dict:
         """The colour bar as the manifest records it."""
         return {"field": self.field, "unit": FIELDS[self.field], "colormap": self.colormap,
-                "range": list(self.range) if self.range is not None else "per frame: 0 to the frame's maximum"}
+                "range": list(self.range) if self.range is not None
+                else "per frame: min(0, the frame's minimum) to the frame's maximum"}

@@ -11,6 +11,7 @@ Unit = Annotated[float, Field(ge=0.0, le=1.0)]
 UnitRGB = Annotated[list[Unit], Field(min_length=3, max_length=3)]
 Absorption = Annotated[list[Annotated[float, Field(ge=0.0, le=1e6)]], Field(min_length=3, max_length=3)]
 Alpha = Annotated[float, Field(ge=1e-3, le=1.0)]
+Attenuation = Annotated[list[Annotated[float, Field(gt=0.0, le=1e6)]], Field(min_length=3, max_length=3)]
 
 
 class LayerOverride(BaseModel):
@@ -33,6 +34,16 @@ class LayerOverride(BaseModel):
         "connective layer thickness [m]; the deep colour shows through exp(-2 absorption thickness)"))
     connective_absorption: Absorption | None = Field(None, description="connective layer absorption [1/m] per RGB channel")
     submucosa_colour: UnitRGB | None = Field(None, description="diffuse colour of the deep (vessel-bearing) layer")
+    connective_sss_colour: UnitRGB | None = Field(None, description=(
+        "subsurface colour of the connective layer (default: the material's sss_colour); weighted 1 - e in the "
+        "thickness term's colour, e = exp(-2 connective_absorption connective_thickness)"))
+    connective_sigma: Attenuation | None = Field(None, description=(
+        "attenuation [1/m] of the thickness term within the connective layer's thickness (default: the material's "
+        "sigma)"))
+    submucosa_sss_colour: UnitRGB | None = Field(None, description=(
+        "subsurface colour of the deep layer (default: the material's sss_colour); weighted e"))
+    submucosa_sigma: Attenuation | None = Field(None, description=(
+        "attenuation [1/m] of the thickness term below the connective layer (default: the material's sigma)"))
     vessel_density: Annotated[float, Field(ge=0.0, le=10.0)] | None = Field(None, description=(
         "strength of the vessel trees in the texture (0: none)"))
     bump: Annotated[float, Field(ge=0.0, le=0.1)] | None = Field(None, description=(

@@ -72,5 +72,11 @@ def kernel_tables(bsdfs, optics):
     # the tissue lobe's albedo tables, needed (and computed, once per process) only under a wet coat
     # (the placeholder is read-only like the cached table, so shade_direct has one numba signature: one compile)
     E = schlick_tables()[0] if any(b.kind == KIND_LAYERED for b in bsdfs) else _NO_SCHLICK
-    return dict(tables, schlick_E=E, f0=column("f0"), k_sss=column("k_sss"), sigma=column("sigma", 3),
-                sss_colour=column("sss_colour", 3))
+    # the thickness term per material: C, and the attenuations above and below the connective layer's depth
+    # (optics.subsurface_attenuation; depth 0 and equal sigmas for a single-layer term)
+    att = [o.subsurface_attenuation() for o in optics]
+    sss = dict(sigma=np.zeros((k, 3)), sigma_deep=np.zeros((k, 3)), sss_depth=np.zeros(k), sss_colour=np.zeros((k, 3)))
+    for mid, (o, (upper, deep, depth)) in enumerate(zip(optics, att)):
+        sss["sigma"][mid], sss["sigma_deep"][mid], sss["sss_depth"][mid] = upper, deep, depth
+        sss["sss_colour"][mid] = o.subsurface_colour
+    return dict(tables, schlick_E=E, f0=column("f0"), k_sss=column("k_sss"), **sss)

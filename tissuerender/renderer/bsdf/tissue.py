@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from materials.optics import layered_transmittance
+
 from tissuerender.renderer.bsdf.microfacet import angle_cosines, ggx_D, schlick_F, smith_visibility
 from tissuerender.renderer.shade_kernel import KIND_TISSUE
 
@@ -54,11 +56,16 @@ def reflectance_cos(n, wo, wi, albedo, alpha, f0, sss=None):
 
 def subsurface_term(optics, mat, thickness, albedo):
     """The diffuse correction ``k_sss (C exp(-sigma T) - albedo / pi)`` (k, 3) of every point (Qian eqs.
-    6.5, 6.8) from the per-material ``optics`` indexed by ``mat``; an infinite thickness transmits nothing."""
+    6.5, 6.8) from the per-material ``optics`` indexed by ``mat``; an infinite thickness transmits nothing.
+    Layered materials: C is the layers' ``subsurface_colour`` and ``exp(-sigma T)`` the two layers'
+    ``layered_transmittance`` (``materials.optics``; the same value as ``exp(-sigma T)`` when no layer sets its own)."""
     k_sss = np.array([o.k_sss for o in optics], float)[mat]
-    sigma = np.array([o.sigma for o in optics], float).reshape(-1, 3)[mat]
-    colour = np.array([o.sss_colour for o in optics], float).reshape(-1, 3)[mat]
-    transmit = np.exp(-sigma * np.where(np.isfinite(thickness), thickness, np.inf)[:, None])
+    att = [o.subsurface_attenuation() for o in optics]
+    upper = np.array([a[0] for a in att], float).reshape(-1, 3)[mat]
+    deep = np.array([a[1] for a in att], float).reshape(-1, 3)[mat]
+    depth = np.array([a[2] for a in att], float)[mat]
+    colour = np.array([o.subsurface_colour for o in optics], float).reshape(-1, 3)[mat]
+    transmit = layered_transmittance(upper, deep, depth, thickness)
     return k_sss[:, None] * (colour / np.pi * transmit - albedo / np.pi)
 
 
