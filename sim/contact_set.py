@@ -247,6 +247,7 @@ class ContactSet:
         self.all_triangles = np.arange(self.tri_v.shape[0], dtype=np.int64)
         self.x_start = np.zeros((n_nodes, 3))
         self.node_ref, self.node_clear = np.zeros((self.nodes.size, 3)), np.zeros(self.nodes.size)
+        self.last_hint = np.full(self.nodes.size, -1, np.int64)
         self.normals_at = np.full(self.tri_v.shape[0], -1, np.int64)  # feature normals: the substep they are of
         self.substep = 0
         self.begin(None)
@@ -266,7 +267,7 @@ class ContactSet:
                 x, self.static_x, self.n_nodes, self.c_static, self.c_reach, self.c_motion, self.c_node_start,
                 self.nodes, self.c_tri_start, self.tri_v, self.g_origin, self.g_cell, self.g_dims, self.g_start_off,
                 self.g_items_off, self.g_start, self.g_items, self.g_clearance, self.node_ref, self.node_clear,
-                self.face_n, self.lo, self.hi)
+                self.last_hint, self.face_n, self.lo, self.hi)
         e = self.entry_node.size
         self.lam_n, self.tri = np.zeros(e), np.zeros(e, dtype=np.int64)
         self.bary, self.normal = np.zeros((e, 3)), np.zeros((e, 3))

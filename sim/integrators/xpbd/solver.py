@@ -15,9 +15,11 @@ vectorised blocks, ``sim.integrators.xpbd.blocked``), project
 ``x_i += w_i grad_i C dlambda`` (Qian 4.42–4.44; its eq. 4.22 gradient typo: docs/design.md, "Qian 4.22: strain-constraint gradient");
 then tool contact, grasp attachments and static contact planes (``sim.contact``; Coulomb friction once after the
 sweeps), then the nodes held in some components only are projected back onto their constraint
-(``sim.model.PartialTargets``), then ``v = (x - x_prev) / dt``. ``tool_loads``: the force and torque the tissue
-exerted on each probe over the last step (minus the contact impulses over the step, ``sim.probe``). The ``jacobi`` solver averages the corrections of all
-tets per iteration (with relaxation) instead.
+(``sim.model.PartialTargets``), then ``v = (x - x_prev) / dt``. Tools, grasps, planes and surface contacts without
+the per-sweep extras run a substep's sweeps in one compiled call (``sim.integrators.xpbd.sweeps``, same result).
+``tool_loads``: the force and torque the tissue exerted on each probe over the last step (minus the contact impulses
+over the step, ``sim.probe``). The ``jacobi`` solver averages the corrections of all tets per iteration (with
+relaxation) instead.
 
 Cuts (``sim.cutting``): at the start of a substep the tets an active blade sweeps through are removed and the
 per-tet data rebuilt on the rest (:meth:`XPBD.remove_tets`); a cutting tool's blade pushes no tissue.
