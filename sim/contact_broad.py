@@ -48,8 +48,8 @@ def _corner_angle(x, tri_v, f, k):
 @njit(cache=True)
 def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, first, cand, c0, c1, a, b, c):
     """The nearest triangle within ``reach`` of point g over ``first`` (-1: none) then ``cand[c0:c1]``, skipping a
-    triangle whose box (the grown box shrunk by ``reach``) is farther than the best so far: ``(t, feature, b0, b1,
-    b2)``, t = -1 for none (``sim.contact_mesh.project_nodes``' search); ``a``, ``b``, ``c``: (3,) scratch."""
+    triangle whose box (the grown box shrunk by ``reach``) or plane is farther than the best so far: ``(t, feature,
+    b0, b1, b2)``, t = -1 for none (``sim.contact_mesh.project_nodes``' search); ``a``, ``b``, ``c``: (3,) scratch."""
     best, best_t, best_f = reach * reach, -1, 0
     b0 = b1 = b2 = 0.0
     for s in range(c0 - (1 if first >= 0 else 0), c1):
@@ -64,6 +64,15 @@ def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, firs
             a[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 0], d)
             b[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 1], d)
             c[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 2], d)
+        # the distance to the triangle's plane bounds the distance to it from below (a node resting on a surface lies
+        # in the boxes of most triangles around it, not near their planes); pruned only beyond rounding (1e-9
+        # relative, far above the few ulps the two computations differ by), so ties are searched as before
+        nx = (b[1] - a[1]) * (c[2] - a[2]) - (b[2] - a[2]) * (c[1] - a[1])
+        ny = (b[2] - a[2]) * (c[0] - a[0]) - (b[0] - a[0]) * (c[2] - a[2])
+        nz = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        height = nx * (g[0] - a[0]) + ny * (g[1] - a[1]) + nz * (g[2] - a[2])
+        if height * height > best * (1.0 + 1e-9) * (nx * nx + ny * ny + nz * nz):
+            continue
         e0, e1, e2, feature = closest_on_triangle(g, a, b, c)
         d2 = 0.0
         for d in range(3):
@@ -182,8 +191,8 @@ def feature_normals(x, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edg
 
 @njit(cache=True)
 def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start, nodes, c_tri_start, tri_v, g_origin,
-                g_cell, g_dims, g_start_off, g_items_off, g_start, g_items, g_clearance, node_ref, node_clear, last_hint,
-                face_n, lo, hi):
+                g_cell, g_dims, g_start_off, g_items_off, g_start, g_items, g_clearance, node_ref, node_clear,
+                last_hint, face_n, lo, hi):
     """The substep's visited nodes (module docstring) of every contact c (its tested ``nodes[c_node_start[c]:
     c_node_start[c + 1]]``, its triangles ``c_tri_start[c]:c_tri_start[c + 1]``). Updates a body surface's
     ``face_n``, ``lo``, ``hi`` (all its triangles; edge and corner normals: :func:`feature_normals`, on demand). A
