@@ -31,17 +31,44 @@ from sim.contact_broad import broad_phase, cell_clearance, feature_normals, near
 
 
 @njit(cache=True)
+def _listed_motion(x, x_start, n_nodes, tri_v, hint, candidates, c0, c1):
+    """The largest displacement since the broad phase of a vertex of the hint or of the listed triangles."""
+    most = 0.0
+    for s in range(c0 - 1, c1):
+        t = candidates[s] if s >= c0 else hint
+        for k in range(3):
+            v = tri_v[t, k]
+            if v < n_nodes:
+                most = max(most, (x[v, 0] - x_start[v, 0]) ** 2 + (x[v, 1] - x_start[v, 1]) ** 2
+                           + (x[v, 2] - x_start[v, 2]) ** 2)
+    return np.sqrt(most)
+
+
+@njit(cache=True)
+def _keep_clearance(e, g, distance, x, x_start, n_nodes, tri_v, hint, candidates, c0, c1, clear_x, clear_d, clear_m):
+    """Entry e's node at g is outside at ``distance`` (a little less: rounding) from its listed triangles."""
+    clear_d[e] = distance * (1.0 - 1e-9)
+    clear_m[e] = _listed_motion(x, x_start, n_nodes, tri_v, hint, candidates, c0, c1)
+    for d in range(3):
+        clear_x[e, d] = g[d]
+
+
+@njit(cache=True)
 def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact, entry_hint, entry_start, candidates,
                     all_triangles, c_tri_start, tri_v, tri_adj, tri_lv, lv_start, lv_face, normals_at, substep, face_n,
-                    edge_n, corner_n, lo, hi, c_reach, c_motion, c_sign, c_pair, lam_n, contact_tri, contact_bary,
-                    contact_n, loads):
+                    edge_n, corner_n, lo, hi, c_reach, c_motion, c_closed, clear_x, clear_d, clear_m, c_sign, c_pair,
+                    lam_n, contact_tri, contact_bary, contact_n, loads):
     """One Gauss-Seidel pass of the contact constraint over the visited nodes (``sim.contact_mesh.project_nodes``'
     update: both sides moved by their inverse masses); per entry the summed normal impulse, the triangle,
     barycentrics and normal of its last correction; ``c_sign[c]`` times the impulse and its moment about the origin
     added to ``loads[c_pair[c]]``. A node searches its candidate list while it has moved less than ``c_motion[c]``
     since the broad phase (``x_start``), else all of its contact's triangles (``all_triangles``: 0, 1, ...). Returns
     the number of corrections. A body surface's edge and vertex normals are computed for a triangle when it is
-    first nearest to a node in the substep (``normals_at[t]``: the last ``substep`` they were)."""
+    first nearest to a node in the substep (``normals_at[t]``: the last ``substep`` they were). A node found outside a
+    closed surface (``c_closed``) at distance ``clear_d[e]`` at ``clear_x[e]`` (its listed vertices then moved
+    ``clear_m[e]`` since the broad phase) stays outside while its motion since and its listed vertices' cannot close
+    that distance (it would have to cross the surface): it is not searched (the same result: an outside node is left
+    alone). ``clear_d[e] = 0``: no such bound."""
     moved = 0
     g, pa, pb, pc = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for e in range(entry_node.size):
@@ -49,7 +76,14 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         for d in range(3):
             g[d] = x[i, d]
         motion2 = (g[0] - x_start[i, 0]) ** 2 + (g[1] - x_start[i, 1]) ** 2 + (g[2] - x_start[i, 2]) ** 2
-        if motion2 < c_motion[c] * c_motion[c]:
+        listed = motion2 < c_motion[c] * c_motion[c]
+        if listed:
+            if clear_d[e] > 0.0:
+                surface = _listed_motion(x, x_start, n_nodes, tri_v, entry_hint[e], candidates, entry_start[e],
+                                         entry_start[e + 1])
+                node = np.sqrt((g[0] - clear_x[e, 0]) ** 2 + (g[1] - clear_x[e, 1]) ** 2 + (g[2] - clear_x[e, 2]) ** 2)
+                if node + surface + clear_m[e] < clear_d[e]:
+                    continue
             t, f, b0, b1, b2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
                                                 entry_hint[e], candidates, entry_start[e], entry_start[e + 1], pa, pb,
                                                 pc)
@@ -57,7 +91,11 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
             t, f, b0, b1, b2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
                                                 entry_hint[e], all_triangles, c_tri_start[c], c_tri_start[c + 1], pa,
                                                 pb, pc)
+        clear_d[e] = 0.0
         if t < 0:
+            if listed and c_closed[c]:  # no listed triangle within reach
+                _keep_clearance(e, g, c_reach[c], x, x_start, n_nodes, tri_v, entry_hint[e], candidates,
+                                entry_start[e], entry_start[e + 1], clear_x, clear_d, clear_m)
             continue
         va, vb, vc = tri_v[t, 0], tri_v[t, 1], tri_v[t, 2]
         if va < n_nodes and normals_at[t] != substep:  # a body surface's, at the broad phase's positions
@@ -77,6 +115,9 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         else:
             Nx, Ny, Nz = face_n[t, 0], face_n[t, 1], face_n[t, 2]
         if dx * Nx + dy * Ny + dz * Nz >= 0.0:
+            if listed and c_closed[c]:
+                _keep_clearance(e, g, np.sqrt(dx * dx + dy * dy + dz * dz), x, x_start, n_nodes, tri_v, entry_hint[e],
+                                candidates, entry_start[e], entry_start[e + 1], clear_x, clear_d, clear_m)
             continue
         dist = np.sqrt(dx * dx + dy * dy + dz * dz)
         if dist > 1e-300:  # n: from the node to the surface point (outward)
@@ -241,6 +282,8 @@ class ContactSet:
         self.c_sign = np.array([c.spec.sign for c in contacts], dtype=np.float64)
         self.c_pair = np.array([c.spec.pair for c in contacts], dtype=np.int64)
         self.c_mu = np.array([c.spec.friction for c in contacts], dtype=np.float64)
+        # a node outside a closed surface cannot get in without crossing it (a body's boundary, a closed static mesh)
+        self.c_closed = np.array([not c.static or bool((c.adjacent >= 0).all()) for c in contacts], dtype=np.bool_)
         # a node moved this far within the sweeps searches all its contact's triangles, else its list (broad_phase):
         # an eighth of reach, above what one substep's corrections usually move a node
         self.c_motion = self.motion_fraction * self.c_reach
@@ -271,6 +314,7 @@ class ContactSet:
         e = self.entry_node.size
         self.lam_n, self.tri = np.zeros(e), np.zeros(e, dtype=np.int64)
         self.bary, self.normal = np.zeros((e, 3)), np.zeros((e, 3))
+        self.clear_x, self.clear_d, self.clear_m = np.zeros((e, 3)), np.zeros(e), np.zeros(e)
         bounds = np.searchsorted(self.entry_contact, np.arange(len(self.contacts) + 1))
         for k, c in enumerate(self.contacts):
             part = slice(bounds[k], bounds[k + 1])
@@ -282,7 +326,8 @@ class ContactSet:
         return (self.x_start, self.static_x, self.n_nodes, self.entry_node, self.entry_contact, self.entry_hint,
                 self.entry_start, self.candidates, self.all_triangles, self.c_tri_start, self.tri_v, self.tri_adj,
                 self.tri_lv, self.lv_start, self.lv_face, self.normals_at, self.substep, self.face_n,
-                self.edge_n, self.corner_n, self.lo, self.hi, self.c_reach, self.c_motion, self.c_sign, self.c_pair,
+                self.edge_n, self.corner_n, self.lo, self.hi, self.c_reach, self.c_motion, self.c_closed, self.clear_x,
+                self.clear_d, self.clear_m, self.c_sign, self.c_pair,
                 self.lam_n, self.tri, self.bary, self.normal)
 
     def project(self, x: np.ndarray, w: np.ndarray, loads: np.ndarray) -> int:
