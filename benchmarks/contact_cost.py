@@ -10,7 +10,9 @@ off, ...) after one warm-up each (every run from rest with the jaws open), so a 
 affects all alike; figures are medians over the rounds. ``--quick``: 2 rounds of 6 steps, to check the script works.
 Last line: one JSON object with ``seconds_step_off``, ``seconds_step_probe`` (the probe's contact alone, liver_probe
 as shipped), ``seconds_step_on`` (per step), ``fraction`` = (on - off) / on, the share of a step with contact and
-grasping that they take, ``fraction_beyond_probe`` = (on - probe) / on, the grasp's and the contacts' share, and
+grasping that they take, ``fraction_beyond_probe`` = (on - probe) / on, the grasp's and the contacts' share, the same
+in CPU time (``cpu_seconds_step_*``, ``cpu_fraction``: one thread, so the process's own time, which other jobs on a
+shared machine disturb less than the wall clock), and
 ``grasped_nodes``, ``slab_liver_contacts``, ``wall_contacts`` (nodes in contact in the last substep: how much they did).
 """
 from __future__ import annotations
@@ -52,14 +54,15 @@ def scene_with_contact():
     return scene_from_data(data, SCENE, "benchmark")
 
 
-def run(integrator, model, steps: int, dt: float) -> float:
+def run(integrator, model, steps: int, dt: float) -> tuple[float, float]:
+    """Wall and CPU time per step (one thread: the CPU time is this run's alone, steadier on a shared machine)."""
     state = State.at_rest(model)
     # every run from rest with open jaws: a grasp left closed by the previous run would hold its nodes from t = 0
     integrator.grasps = [GraspState(g.grasp, g.probe) for g in getattr(integrator, "grasps", ())]
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     for _ in range(steps):
         state = integrator.step(state, dt)
-    return (time.perf_counter() - start) / steps
+    return (time.perf_counter() - start) / steps, (time.process_time() - start_cpu) / steps
 
 
 def main() -> None:
@@ -86,14 +89,21 @@ def main() -> None:
     for integrator, model in variants.values():
         run(integrator, model, 2, dt)  # warm-up: compilation, caches
     seconds = {name: [] for name in variants}
+    cpu = {name: [] for name in variants}
     for _ in range(rounds):
         for name, (integrator, model) in variants.items():
-            seconds[name].append(run(integrator, model, steps, dt))
+            wall, used = run(integrator, model, steps, dt)
+            seconds[name].append(wall)
+            cpu[name].append(used)
     med = {name: statistics.median(v) for name, v in seconds.items()}
+    med_cpu = {name: statistics.median(v) for name, v in cpu.items()}
     on = stepper.integrator
     result = {"seconds_step_off": round(med["off"], 5), "seconds_step_probe": round(med["probe"], 5),
               "seconds_step_on": round(med["on"], 5), "fraction": round((med["on"] - med["off"]) / med["on"], 4),
               "fraction_beyond_probe": round((med["on"] - med["probe"]) / med["on"], 4),
+              "cpu_seconds_step_off": round(med_cpu["off"], 5), "cpu_seconds_step_probe": round(med_cpu["probe"], 5),
+              "cpu_seconds_step_on": round(med_cpu["on"], 5),
+              "cpu_fraction": round((med_cpu["on"] - med_cpu["off"]) / med_cpu["on"], 4),
               "grasped_nodes": int(on.grasps[0].nodes.size) if on.grasps else 0,
               "slab_liver_contacts": int(sum(np.count_nonzero(c.lam_n) for c in on.contacts[:2])),
               "wall_contacts": int(np.count_nonzero(on.contacts[2].lam_n)),

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sim.contact import ContactPlane
-from sim.contact_mesh import (GRID_CELLS, build_grid, face_adjacency, friction_nodes, mean_edge_length,
-                              project_nodes, pseudonormals, triangle_boxes)
+from sim.contact_mesh import (GRID_CELLS, build_grid, face_adjacency, mean_edge_length, project_nodes, pseudonormals,
+                              triangle_boxes)
 from sim.mesh.surface import boundary_faces
 from sim.model import Model, PrescribedDisplacement, State
 from sim.pose import orientation_at, quat_matrix
@@ -107,46 +107,15 @@ class SurfaceContactState:
             self.cell = max(self.cell / self.static_cell_split, extent / GRID_CELLS)
         self.origin, self.dims, self.start, self.items = build_grid(self.lo, self.hi, self.cell)
 
-    def begin(self, x: np.ndarray) -> None:
-        """At a substep's start (after the prediction): a body's surface gets its grid at ``x``; multipliers reset;
-        the sweeps will visit only the nodes within ``reach`` of the surface now (a node farther off would have to be
-        moved more than ``reach``, an edge length by default, by the sweeps' corrections within one substep to
-        reach it)."""
-        if not self.static:
-            self._surface(x)
-        xv, wv = (self.xv, self.wv) if self.static else (x, np.zeros(0))
-        q = self.spec.nodes.size
-        tri = np.empty(q, dtype=np.int64)
-        project_nodes(x, np.zeros(0), self.spec.nodes, xv, self.vmap, wv, self.shift, self.faces, self.face_n,
-                      self.edge_n, self.vert_n, self.lo, self.hi, self.origin, self.cell, self.dims, self.start,
-                      self.items, self.reach, self.lam_n, tri, self.bary, self.normal, np.zeros(6), self.centre,
-                      0.0, self.no_hint, True)
-        self.active = self.spec.nodes[tri >= 0]
-        self.hint = tri[tri >= 0]  # each visited node's nearest triangle now: tried first in the sweeps
-        k = self.active.size
-        self.lam_n, self.tri = np.zeros(k), np.zeros(k, dtype=np.int64)
-        self.bary, self.normal = np.zeros((k, 3)), np.zeros((k, 3))
-
     def project(self, x: np.ndarray, w: np.ndarray, load: np.ndarray) -> int:
         """One pass over the nodes; adds ``sign`` times their impulse and its moment about ``centre`` to ``load``."""
         if not self.active.size:
             return 0
-        # a body's surface moves with the sweeps: its points at their current positions, its normals and grid from
-        # the substep's start (they turn by a substep's rotation of the surface, far below what flips an inside test)
         xv, wv = (self.xv, self.wv) if self.static else (x, w)
         return int(project_nodes(x, w, self.active, xv, self.vmap, wv, self.shift, self.faces, self.face_n,
                                  self.edge_n, self.vert_n, self.lo, self.hi, self.origin, self.cell, self.dims,
                                  self.start, self.items, self.reach, self.lam_n, self.tri, self.bary, self.normal,
                                  load, self.centre, self.spec.sign, self.hint))
-
-    def friction(self, x: np.ndarray, x_prev: np.ndarray, w: np.ndarray, load: np.ndarray,
-                 shift_delta: np.ndarray | None = None) -> None:
-        if self.spec.friction == 0.0 or not self.active.size:
-            return
-        xv, xv_prev, wv = (self.xv, self.xv, self.wv) if self.static else (x, x_prev, w)
-        friction_nodes(x, x_prev, w, self.active, xv, xv_prev, self.vmap, wv,
-                       np.zeros(3) if shift_delta is None else shift_delta, self.faces, self.spec.friction,
-                       self.lam_n, self.tri, self.bary, self.normal, load, self.centre, self.spec.sign)
 
 
 class MeshProbe(Probe):

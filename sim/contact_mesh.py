@@ -164,17 +164,15 @@ def build_grid(lo, hi, cell):
 
 @njit(cache=True)
 def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_n, lo, hi, origin, cell, dims,
-                  start, items, reach, lam_n, contact_tri, contact_bary, contact_n, load, centre, sign, hint,
-                  mark=False):
+                  start, items, reach, lam_n, contact_tri, contact_bary, contact_n, load, centre, sign, hint):
     """One Gauss-Seidel pass of the contact constraint (module docstring) over ``nodes`` of ``x``: surface vertex k
     at ``xv[vmap[k]] + shift`` (inverse mass ``wv[vmap[k]]``); grid (``build_grid``) of the triangle boxes
     ``lo``-``hi`` (grown by ``reach``) in the surface's frame (``p - shift``). Records per node (index into
     ``nodes``) the summed normal impulse, the triangle, barycentrics and normal of its last correction; adds
     ``sign`` times the impulse on the nodes and its moment about ``centre`` to ``load`` (6,). Returns the number of
     corrections. ``hint`` (empty, or a triangle per node, -1 for none): tried first, so the nearest-box pruning drops
-    the others at once when the node is still nearest to it. ``mark``: correct nothing, only set ``contact_tri[q]`` to
-    the triangle nearest node q within ``reach``, or -1 (the nodes a substep's sweeps visit, and their hints,
-    ``sim.contact_bodies.SurfaceContactState.begin``); returns their number."""
+    the others at once when the node is still nearest to it. A model's contacts take ``sim.contact_set`` (a broad phase
+    per substep), a mesh tool this grid search."""
     moved = 0
     g = np.empty(3)
     a, b, c = np.empty(3), np.empty(3), np.empty(3)
@@ -185,8 +183,6 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
         cx = int(np.floor((g[0] - origin[0]) / cell))
         cy = int(np.floor((g[1] - origin[1]) / cell))
         cz = int(np.floor((g[2] - origin[2]) / cell))
-        if mark:
-            contact_tri[q] = -1
         if cx < 0 or cy < 0 or cz < 0 or cx >= dims[0] or cy >= dims[1] or cz >= dims[2]:
             continue
         cell_id = (cx * dims[1] + cy) * dims[2] + cz
@@ -215,10 +211,6 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
             if d2 <= best:
                 best, best_t, best_f, b0, b1, b2 = d2, t, feature, c0, c1, c2
         if best_t < 0:
-            continue
-        if mark:
-            contact_tri[q] = best_t
-            moved += 1
             continue
         t = best_t
         va, vb, vc = vmap[faces[t, 0]], vmap[faces[t, 1]], vmap[faces[t, 2]]
@@ -264,56 +256,6 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
         load[5] += sign * (rx * jy - ry * jx)
         moved += 1
     return moved
-
-
-@njit(cache=True)
-def friction_nodes(x, x_prev, w, nodes, xv, xv_prev, vmap, wv, shift_delta, faces, mu, lam_n, contact_tri,
-                   contact_bary, contact_n, load, centre, sign):
-    """Coulomb friction (module docstring) on the nodes with a normal impulse this substep; ``shift_delta``: the
-    static surface's own translation over the substep."""
-    du = np.empty(3)
-    for q in range(nodes.shape[0]):
-        if lam_n[q] <= 0.0:
-            continue
-        i = nodes[q]
-        t = contact_tri[q]
-        ws = 0.0
-        for d in range(3):
-            du[d] = x[i, d] - x_prev[i, d] - shift_delta[d]
-        for k in range(3):
-            v = vmap[faces[t, k]]
-            bk = contact_bary[q, k]
-            for d in range(3):
-                du[d] -= bk * (xv[v, d] - xv_prev[v, d])
-            ws += bk * bk * wv[v]
-        w_sum = w[i] + ws
-        if w_sum == 0.0:
-            continue
-        un = du[0] * contact_n[q, 0] + du[1] * contact_n[q, 1] + du[2] * contact_n[q, 2]
-        tx, ty, tz = du[0] - un * contact_n[q, 0], du[1] - un * contact_n[q, 1], du[2] - un * contact_n[q, 2]
-        slip = np.sqrt(_dot(tx, ty, tz, tx, ty, tz))
-        if slip == 0.0:
-            continue
-        limit = mu * lam_n[q] * w_sum
-        # static: the tangential impulse that stops the relative motion; kinetic: Coulomb's mu lambda_n
-        scale = 1.0 / w_sum if slip < limit else mu * lam_n[q] / slip
-        jx, jy, jz = scale * tx, scale * ty, scale * tz
-        x[i, 0] -= w[i] * jx
-        x[i, 1] -= w[i] * jy
-        x[i, 2] -= w[i] * jz
-        for k in range(3):
-            v = vmap[faces[t, k]]
-            bk = contact_bary[q, k]
-            xv[v, 0] += bk * wv[v] * jx
-            xv[v, 1] += bk * wv[v] * jy
-            xv[v, 2] += bk * wv[v] * jz
-        rx, ry, rz = x[i, 0] - centre[0], x[i, 1] - centre[1], x[i, 2] - centre[2]
-        load[0] -= sign * jx
-        load[1] -= sign * jy
-        load[2] -= sign * jz
-        load[3] -= sign * (ry * jz - rz * jy)
-        load[4] -= sign * (rz * jx - rx * jz)
-        load[5] -= sign * (rx * jy - ry * jx)
 
 
 def face_adjacency(faces: np.ndarray) -> np.ndarray:

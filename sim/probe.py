@@ -76,42 +76,61 @@ def resolve_contact(x: np.ndarray, probe: Probe, t: float, inv_mass: np.ndarray)
     return resolve_contact_load(x, probe, t, inv_mass, np.zeros(6))
 
 
+@njit(cache=True, inline="always")
+def _push_node(x, inv_mass, i, a, b, radius, centre, load):
+    """Node i onto the capsule's surface if it is free and inside (:func:`push_out_of_capsule_load`); True if moved."""
+    if inv_mass[i] == 0.0:
+        return False
+    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    len2 = ab0 * ab0 + ab1 * ab1 + ab2 * ab2
+    ap0, ap1, ap2 = x[i, 0] - a[0], x[i, 1] - a[1], x[i, 2] - a[2]
+    s = 0.0
+    if len2 > 0.0:
+        s = min(max((ap0 * ab0 + ap1 * ab1 + ap2 * ab2) / len2, 0.0), 1.0)
+    c0, c1, c2 = a[0] + s * ab0, a[1] + s * ab1, a[2] + s * ab2
+    d0, d1, d2 = x[i, 0] - c0, x[i, 1] - c1, x[i, 2] - c2
+    dist = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    if not dist < radius:
+        return False
+    if dist < 1e-12:  # at the axis: push along +z (up, away from the tissue's support)
+        d0, d1, d2, dist = 0.0, 0.0, 1.0, 1.0
+    scale = radius / dist
+    m = 1.0 / inv_mass[i]
+    p0, p1, p2 = c0 + d0 * scale, c1 + d1 * scale, c2 + d2 * scale
+    j0, j1, j2 = m * (p0 - x[i, 0]), m * (p1 - x[i, 1]), m * (p2 - x[i, 2])
+    r0, r1, r2 = p0 - centre[0], p1 - centre[1], p2 - centre[2]
+    load[0] += j0
+    load[1] += j1
+    load[2] += j2
+    load[3] += r1 * j2 - r2 * j1
+    load[4] += r2 * j0 - r0 * j2
+    load[5] += r0 * j1 - r1 * j0
+    x[i, 0] = p0
+    x[i, 1] = p1
+    x[i, 2] = p2
+    return True
+
+
 @njit(cache=True)
 def push_out_of_capsule_load(x, inv_mass, a, b, radius, centre, load):
     """Move every free node (inverse mass > 0) inside the capsule a-b of ``radius`` onto its surface (a sphere is
     the capsule with a == b), adding to ``load`` (6,) ``sum m dx`` [kg m] of the nodes it moves (``load[:3]``)
     and their moment ``sum (p - centre) x m dx`` about ``centre`` (``load[3:]``), p the node's new position.
     Returns the number of nodes moved."""
-    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    len2 = ab0 * ab0 + ab1 * ab1 + ab2 * ab2
     moved = 0
     for i in range(x.shape[0]):
-        if inv_mass[i] == 0.0:
-            continue
-        ap0, ap1, ap2 = x[i, 0] - a[0], x[i, 1] - a[1], x[i, 2] - a[2]
-        s = 0.0
-        if len2 > 0.0:
-            s = min(max((ap0 * ab0 + ap1 * ab1 + ap2 * ab2) / len2, 0.0), 1.0)
-        c0, c1, c2 = a[0] + s * ab0, a[1] + s * ab1, a[2] + s * ab2
-        d0, d1, d2 = x[i, 0] - c0, x[i, 1] - c1, x[i, 2] - c2
-        dist = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        if dist < radius:
-            if dist < 1e-12:  # at the axis: push along +z (up, away from the tissue's support)
-                d0, d1, d2, dist = 0.0, 0.0, 1.0, 1.0
-            scale = radius / dist
-            m = 1.0 / inv_mass[i]
-            p0, p1, p2 = c0 + d0 * scale, c1 + d1 * scale, c2 + d2 * scale
-            j0, j1, j2 = m * (p0 - x[i, 0]), m * (p1 - x[i, 1]), m * (p2 - x[i, 2])
-            r0, r1, r2 = p0 - centre[0], p1 - centre[1], p2 - centre[2]
-            load[0] += j0
-            load[1] += j1
-            load[2] += j2
-            load[3] += r1 * j2 - r2 * j1
-            load[4] += r2 * j0 - r0 * j2
-            load[5] += r0 * j1 - r1 * j0
-            x[i, 0] = p0
-            x[i, 1] = p1
-            x[i, 2] = p2
+        if _push_node(x, inv_mass, i, a, b, radius, centre, load):
+            moved += 1
+    return moved
+
+
+@njit(cache=True)
+def push_nodes_out_of_capsule(x, inv_mass, nodes, a, b, radius, centre, load):
+    """:func:`push_out_of_capsule_load` over ``nodes`` (ascending) only: the same result when no other node is
+    inside (``sim.integrators.xpbd.sweeps`` lists the nodes near the capsule once per substep)."""
+    moved = 0
+    for k in range(nodes.size):
+        if _push_node(x, inv_mass, nodes[k], a, b, radius, centre, load):
             moved += 1
     return moved
 

@@ -15,9 +15,11 @@ vectorised blocks, ``sim.integrators.xpbd.blocked``), project
 ``x_i += w_i grad_i C dlambda`` (Qian 4.42–4.44; its eq. 4.22 gradient typo: docs/design.md, "Qian 4.22: strain-constraint gradient");
 then tool contact, grasp attachments and static contact planes (``sim.contact``; Coulomb friction once after the
 sweeps), then the nodes held in some components only are projected back onto their constraint
-(``sim.model.PartialTargets``), then ``v = (x - x_prev) / dt``. ``tool_loads``: the force and torque the tissue
-exerted on each probe over the last step (minus the contact impulses over the step, ``sim.probe``). The ``jacobi`` solver averages the corrections of all
-tets per iteration (with relaxation) instead.
+(``sim.model.PartialTargets``), then ``v = (x - x_prev) / dt``. Tools, grasps, planes and surface contacts without
+the per-sweep extras run a substep's sweeps in one compiled call (``sim.integrators.xpbd.sweeps``, same result).
+``tool_loads``: the force and torque the tissue exerted on each probe over the last step (minus the contact impulses
+over the step, ``sim.probe``). The ``jacobi`` solver averages the corrections of all tets per iteration (with
+relaxation) instead.
 
 Cuts (``sim.cutting``): at the start of a substep the tets an active blade sweeps through are removed: their
 constraints stop acting at once, and the per-tet data is filtered at the end of the step
@@ -37,6 +39,7 @@ from sim.constitutive import models
 from sim.errors import SimulationDiverged
 from sim.integrators.xpbd import blocked, kernels
 from sim.integrators.xpbd.colouring import colour_tets, split_into_domains
+from sim.integrators.xpbd.sweeps import FusedSweeps
 from sim.integrators.xpbd.energy import EnergyConstraints
 from sim.integrators.xpbd.prony import MaxwellBranches
 from sim.integrators.xpbd.removal import TetRemoval
@@ -45,6 +48,7 @@ from sim.integrators.xpbd.strain import GreenStrainLimits
 from sim.contact import GraspState, PlaneState
 from sim.cutting import Cutter
 from sim.contact_bodies import SurfaceContactState
+from sim.contact_set import ContactSet
 from sim.model import Model, State
 from sim.probe import resolve_contact_load
 
@@ -164,10 +168,12 @@ class XPBD:
         self.planes = [PlaneState(p, m.n_nodes) for p in getattr(m, "contact_planes", ())]
         # contact with triangle surfaces: other bodies of a merged model, static meshes (sim.contact_bodies)
         self.contacts = [SurfaceContactState(c, m.X) for c in getattr(m, "contacts", ())]
+        self.contact_set = ContactSet(self.contacts, m.n_nodes)  # their broad and narrow phases (sim.contact_set)
         self.contact_pairs = max((c.pair + 1 for c in getattr(m, "contacts", ())), default=0)
         # cuts (sim.cutting), an optional attribute of the model: tets removed at the start of a substep
         self.cutter = Cutter(m) if getattr(m, "cuts", ()) else None
         self.removal = TetRemoval(self) if self.cutter is not None else None
+        self.fused = None  # sim.integrators.xpbd.sweeps.FusedSweeps, made at the first step that can use it
 
     def _build_tets(self, order: np.ndarray, colour_start: np.ndarray) -> None:
         """Everything per tet or per mass, from the model's tets in colour order ``order`` (ranges ``colour_start``)."""
@@ -216,6 +222,11 @@ class XPBD:
         per_sweep = (bool(m.probes) or self.strain_limits is not None or self.green_limits is not None
                      or not self.partial.empty or bool(self.planes) or bool(self.contacts))
         per_call = 1 if per_sweep or len(self.sets) > 1 else self.iterations
+        fused = None
+        if per_sweep and FusedSweeps.covers(self, m.probes):
+            if self.fused is None:
+                self.fused = FusedSweeps(self)
+            fused = self.fused
         loads = np.zeros((len(m.probes), 6))  # per probe: sum of m dx and its moment, over this step
         substep_load = np.zeros(6)
         plane_loads = np.zeros((len(self.planes), 6))
@@ -246,9 +257,11 @@ class XPBD:
             for plane in self.planes:
                 plane.reset()
             probes = m.probes if self.cutter is None else self.cutter.contact_probes(m.probes, t, t_next)
-            for contact in self.contacts:
-                contact.begin(x)
-            for _ in range(self.iterations // per_call):
+            if self.contacts:
+                self.contact_set.begin(x)
+            if fused is not None:  # every sweep in one compiled call (sim.integrators.xpbd.sweeps)
+                fused.run(x, w_tools, probes, t_next, inv_dt2, loads, plane_loads, contact_loads)
+            for _ in range(0 if fused is not None else self.iterations // per_call):
                 for constraints in self.sets:
                     constraints.sweeps(x, inv_dt2, per_call)
                 if self.strain_limits is not None:
@@ -264,15 +277,13 @@ class XPBD:
                     grasp.project(x, self.w, t_next, inv_dt2, loads[grasp.grasp.probe])
                 for k, plane in enumerate(self.planes):
                     plane.project(x, self.w, plane_loads[k])
-                for contact in self.contacts:
-                    contact.project(x, self.w, contact_loads[contact.spec.pair])
+                self.contact_set.project(x, self.w, contact_loads)
                 # a zero-compliance constraint on the held components, projected last in each sweep (Gauss-Seidel):
                 # the converged state is XPBD's with the generalised inverse mass P / m on these nodes
                 self.partial.place(x, t_next)
             for k, plane in enumerate(self.planes):
                 plane.friction(x, x_prev, self.w, plane_loads[k])
-            for contact in self.contacts:
-                contact.friction(x, x_prev, self.w, contact_loads[contact.spec.pair])
+            self.contact_set.friction(x, x_prev, self.w, contact_loads)
             if self.planes or self.contacts:
                 self.partial.place(x, t_next)
             for grasp in self.grasps:

@@ -1,0 +1,360 @@
+"""The broad phase of ``sim.contact_set`` (triangle-surface contact for XPBD, issue 21): once per substep, the nodes a
+substep's sweeps visit, each with its nearest triangle (the hint) and the short list of triangles it can be nearest to
+during the sweeps; a body surface's normals and boxes at the substep's start. See ``sim.contact_set``'s docstring for
+the rule, ``sim.contact_mesh`` for the constraint and the pseudonormals (Bærentzen & Aanæs 2005).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from sim.contact_mesh import build_grid, closest_on_triangle
+
+
+@njit(cache=True)
+def vertex_coordinate(x, static_x, n_nodes, v, d):
+    return x[v, d] if v < n_nodes else static_x[v - n_nodes, d]
+
+
+@njit(cache=True)
+def _face_normal_and_box(x, static_x, n_nodes, tri_v, t, reach, face_n, lo, hi):
+    """Unit normal and box grown by ``reach`` of triangle t (``sim.contact_mesh.pseudonormals`` and
+    ``triangle_boxes``, the same arithmetic)."""
+    a, b, c = tri_v[t, 0], tri_v[t, 1], tri_v[t, 2]
+    e1x, e1y, e1z = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
+    e2x, e2y, e2z = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
+    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    length = np.sqrt(nx * nx + ny * ny + nz * nz)
+    scale = 1.0 / length if length > 0.0 else 0.0
+    face_n[t, 0], face_n[t, 1], face_n[t, 2] = nx * scale, ny * scale, nz * scale
+    for d in range(3):
+        pa, pb, pc = x[a, d], x[b, d], x[c, d]
+        lo[t, d] = min(pa, pb, pc) - reach
+        hi[t, d] = max(pa, pb, pc) + reach
+
+
+@njit(cache=True)
+def _corner_angle(x, tri_v, f, k):
+    """The angle of triangle f at its corner k (``sim.contact_mesh.pseudonormals``'s weight); -1 when degenerate."""
+    v0, v1, v2 = tri_v[f, k], tri_v[f, (k + 1) % 3], tri_v[f, (k + 2) % 3]
+    ux, uy, uz = x[v1, 0] - x[v0, 0], x[v1, 1] - x[v0, 1], x[v1, 2] - x[v0, 2]
+    wx, wy, wz = x[v2, 0] - x[v0, 0], x[v2, 1] - x[v0, 1], x[v2, 2] - x[v0, 2]
+    lu, lw = np.sqrt(ux * ux + uy * uy + uz * uz), np.sqrt(wx * wx + wy * wy + wz * wz)
+    if lu > 0.0 and lw > 0.0:
+        return np.arccos(min(1.0, max(-1.0, (ux * wx + uy * wy + uz * wz) / (lu * lw))))
+    return -1.0
+
+
+@njit(cache=True)
+def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, first, cand, c0, c1, a, b, c):
+    """The nearest triangle within ``reach`` of point g over ``first`` (-1: none) then ``cand[c0:c1]``, skipping a
+    triangle whose box (the grown box shrunk by ``reach``) or plane is farther than the best so far: ``(t, feature,
+    b0, b1, b2)``, t = -1 for none (``sim.contact_mesh.project_nodes``' search); ``a``, ``b``, ``c``: (3,) scratch."""
+    best, best_t, best_f = reach * reach, -1, 0
+    b0 = b1 = b2 = 0.0
+    for s in range(c0 - (1 if first >= 0 else 0), c1):
+        t = cand[s] if s >= c0 else first
+        box2 = 0.0
+        for d in range(3):
+            r = max(lo[t, d] + reach - g[d], g[d] - (hi[t, d] - reach), 0.0)
+            box2 += r * r
+        if box2 > best or face_n[t, 0] == 0.0 and face_n[t, 1] == 0.0 and face_n[t, 2] == 0.0:
+            continue
+        for d in range(3):
+            a[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 0], d)
+            b[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 1], d)
+            c[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 2], d)
+        # the distance to the triangle's plane bounds the distance to it from below (a node resting on a surface lies
+        # in the boxes of most triangles around it, not near their planes); pruned only beyond rounding (1e-9
+        # relative, far above the few ulps the two computations differ by), so ties are searched as before
+        nx = (b[1] - a[1]) * (c[2] - a[2]) - (b[2] - a[2]) * (c[1] - a[1])
+        ny = (b[2] - a[2]) * (c[0] - a[0]) - (b[0] - a[0]) * (c[2] - a[2])
+        nz = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        height = nx * (g[0] - a[0]) + ny * (g[1] - a[1]) + nz * (g[2] - a[2])
+        if height * height > best * (1.0 + 1e-9) * (nx * nx + ny * ny + nz * nz):
+            continue
+        e0, e1, e2, feature = closest_on_triangle(g, a, b, c)
+        d2 = 0.0
+        for d in range(3):
+            r = g[d] - (e0 * a[d] + e1 * b[d] + e2 * c[d])
+            d2 += r * r
+        if d2 <= best:
+            best, best_t, best_f, b0, b1, b2 = d2, t, feature, e0, e1, e2
+    return best_t, best_f, b0, b1, b2
+
+
+@njit(cache=True)
+def _append(buf, n, value):
+    if n == buf.size:
+        grown = np.empty(2 * buf.size + 16, buf.dtype)
+        grown[:n] = buf[:n]
+        buf = grown
+    buf[n] = value
+    return buf
+
+
+@njit(cache=True)
+def _box_distance(g, lo, hi, t, reach):
+    """Distance from g to triangle t's own box (its box grown by ``reach``, shrunk again)."""
+    box2 = 0.0
+    for d in range(3):
+        r = max(lo[t, d] + reach - g[d], g[d] - (hi[t, d] - reach), 0.0)
+        box2 += r * r
+    return np.sqrt(box2)
+
+
+@njit(cache=True)
+def cell_clearance(origin, cell, dims, lo, hi, reach):
+    """Per cell of a static surface's grid (``sim.contact_mesh.build_grid`` over boxes ``lo``-``hi`` grown by
+    ``reach``): the distance from the cell to the nearest triangle's own box, a lower bound of any of its points'
+    distance to the surface (a node in a cell farther than ``reach`` has no triangle within reach)."""
+    clearance = np.full(dims[0] * dims[1] * dims[2] + 1, np.inf)
+    for i in range(dims[0]):
+        for j in range(dims[1]):
+            for k in range(dims[2]):
+                cell_lo = (origin[0] + i * cell, origin[1] + j * cell, origin[2] + k * cell)
+                best = np.inf
+                for t in range(lo.shape[0]):
+                    gap2 = 0.0
+                    for d in range(3):
+                        r = max(lo[t, d] + reach - (cell_lo[d] + cell), cell_lo[d] - (hi[t, d] - reach), 0.0)
+                        gap2 += r * r
+                    best = min(best, gap2)
+                clearance[(i * dims[1] + j) * dims[2] + k] = np.sqrt(best)
+    return clearance
+
+
+@njit(cache=True)
+def _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0, origin, cell, dims, start_off, items_off,
+                      g_start, g_items, seen, stamp, a, b, c):
+    """The distance from g to a static surface, at most ``2 reach`` (the triangles from the grid cells within that of
+    g, skipped when their box is farther than the nearest so far), a little under it (rounding)."""
+    limit = 2.0 * reach
+    best = limit * limit
+    lo_cell, hi_cell = np.empty(3, np.int64), np.empty(3, np.int64)
+    for d in range(3):
+        lo_cell[d] = max(int(np.floor((g[d] - limit - origin[d]) / cell)), 0)
+        hi_cell[d] = min(int(np.floor((g[d] + limit - origin[d]) / cell)), dims[d] - 1)
+    for ci in range(lo_cell[0], hi_cell[0] + 1):
+        for cj in range(lo_cell[1], hi_cell[1] + 1):
+            for ck in range(lo_cell[2], hi_cell[2] + 1):
+                cell_id = start_off + (ci * dims[1] + cj) * dims[2] + ck
+                for s in range(g_start[cell_id], g_start[cell_id + 1]):
+                    t = t0 + g_items[items_off + s]
+                    if seen[t] == stamp or _box_distance(g, lo, hi, t, reach) ** 2 > best:
+                        continue
+                    seen[t] = stamp
+                    for d in range(3):
+                        a[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 0], d)
+                        b[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 1], d)
+                        c[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 2], d)
+                    e0, e1, e2, _ = closest_on_triangle(g, a, b, c)
+                    d2 = 0.0
+                    for d in range(3):
+                        r = g[d] - (e0 * a[d] + e1 * b[d] + e2 * c[d])
+                        d2 += r * r
+                    best = min(best, d2)
+    return np.sqrt(best) * (1.0 - 1e-9)
+
+
+@njit(cache=True)
+def feature_normals(x, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edge_n, corner_n):
+    """Triangle t's edge normals (its and its neighbour's face normals summed) and angle-weighted vertex normals at
+    its corners (over the faces around each, ascending: the sums of ``sim.contact_mesh.pseudonormals``, the same
+    arithmetic) at positions ``x``; ``tri_lv``: a corner's surface vertex, ``lv_face[lv_start[v]:lv_start[v + 1]]``
+    the faces around it."""
+    for k in range(3):
+        f = tri_adj[t, k]
+        for d in range(3):
+            edge_n[t, k, d] = face_n[t, d] + face_n[f, d] if f >= 0 else face_n[t, d]
+        length = np.sqrt(edge_n[t, k, 0] ** 2 + edge_n[t, k, 1] ** 2 + edge_n[t, k, 2] ** 2)
+        if length > 0.0:
+            for d in range(3):
+                edge_n[t, k, d] /= length
+        v = tri_lv[t, k]
+        nx = ny = nz = 0.0
+        for s in range(lv_start[v], lv_start[v + 1]):
+            f = lv_face[s]
+            corner = 0
+            while tri_lv[f, corner] != v:
+                corner += 1
+            angle = _corner_angle(x, tri_v, f, corner)
+            if angle >= 0.0:
+                nx += angle * face_n[f, 0]
+                ny += angle * face_n[f, 1]
+                nz += angle * face_n[f, 2]
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if length > 0.0:
+            nx, ny, nz = nx / length, ny / length, nz / length
+        corner_n[t, k, 0], corner_n[t, k, 1], corner_n[t, k, 2] = nx, ny, nz
+
+
+@njit(cache=True)
+def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start, nodes, c_tri_start, tri_v, g_origin,
+                g_cell, g_dims, g_start_off, g_items_off, g_start, g_items, g_clearance, node_ref, node_clear,
+                last_hint, face_n, lo, hi):
+    """The substep's visited nodes (module docstring) of every contact c (its tested ``nodes[c_node_start[c]:
+    c_node_start[c + 1]]``, its triangles ``c_tri_start[c]:c_tri_start[c + 1]``). Updates a body surface's
+    ``face_n``, ``lo``, ``hi`` (all its triangles; edge and corner normals: :func:`feature_normals`, on demand). A
+    static surface's grid: origin, cell, dims, and ``g_start[g_start_off[c]:]``,
+    ``g_items[g_items_off[c]:]`` (``sim.contact_mesh.build_grid``, triangle ids local to the surface), ``g_clearance``
+    per cell a lower bound of its distance to the surface (:func:`cell_clearance`); a static surface's tested node q
+    not within reach of it gets in ``node_clear[q]`` its distance to it (at most ``2 reach``) at ``node_ref[q]``: it is
+    not tested again before it has moved ``node_clear[q] - reach``; ``last_hint[q]``: its nearest triangle at the last
+    broad phase (-1: none). A visited node
+    at distance ``d0`` from its nearest triangle lists the triangles whose box is within ``d0 + 4 c_motion[c]`` of it
+    (at most ``reach + 2 c_motion[c]``; a body surface's from a grid of the triangles near the tested nodes)
+    (with every point moved less than ``c_motion`` since, the nearest then is among them: the node and the hint's
+    points each moved less than that). Returns ``(entry_node, entry_contact, entry_hint, entry_start, candidates)``:
+    per visited node its contact, hint and candidate triangles ``candidates[entry_start[e]:entry_start[e + 1]]``."""
+    n_contacts = c_reach.size
+    entry_node = np.empty(nodes.size, np.int64)
+    entry_contact = np.empty(nodes.size, np.int64)
+    entry_hint = np.empty(nodes.size, np.int64)
+    entry_start = np.zeros(nodes.size + 1, np.int64)
+    cand = np.empty(256, np.int64)
+    near = np.empty(256, np.int64)  # a static surface's triangles in a node's grid cells, or a body's near its nodes
+    n_cand, n_entries = 0, 0
+    seen = np.full(tri_v.shape[0], -1, np.int64)  # per triangle: the last node that gathered it
+    g, pa, pb, pc = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    lo_cell, hi_cell = np.empty(3, np.int64), np.empty(3, np.int64)
+    for c in range(n_contacts):
+        t0, t1 = c_tri_start[c], c_tri_start[c + 1]
+        reach = c_reach[c]
+        q0, q1 = c_node_start[c], c_node_start[c + 1]
+        if q0 == q1:
+            continue
+        if not c_static[c]:
+            for t in range(t0, t1):
+                _face_normal_and_box(x, static_x, n_nodes, tri_v, t, reach, face_n, lo, hi)
+        # only nodes in the surface's grown box can be within reach of it, and only triangles whose grown box
+        # overlaps those nodes' box
+        surface_lo, surface_hi = np.full(3, np.inf), np.full(3, -np.inf)
+        for t in range(t0, t1):
+            for d in range(3):
+                surface_lo[d] = min(surface_lo[d], lo[t, d])
+                surface_hi[d] = max(surface_hi[d], hi[t, d])
+        nodes_lo, nodes_hi = np.full(3, np.inf), np.full(3, -np.inf)
+        for q in range(q0, q1):
+            for d in range(3):
+                nodes_lo[d] = min(nodes_lo[d], max(x[nodes[q], d], surface_lo[d]))
+                nodes_hi[d] = max(nodes_hi[d], min(x[nodes[q], d], surface_hi[d]))
+        n_body = 0
+        if not c_static[c]:
+            for t in range(t0, t1):
+                overlaps = True
+                for d in range(3):
+                    overlaps = overlaps and lo[t, d] <= nodes_hi[d] and hi[t, d] >= nodes_lo[d]
+                if overlaps:
+                    near = _append(near, n_body, t)
+                    n_body += 1
+        if not c_static[c] and n_body == 0:
+            continue
+        if not c_static[c]:  # a grid of those, their boxes grown by reach + 2 c_motion (the largest list radius)
+            grow = 2.0 * c_motion[c]
+            sub_lo, sub_hi = np.empty((n_body, 3)), np.empty((n_body, 3))
+            for s in range(n_body):
+                for d in range(3):
+                    sub_lo[s, d] = lo[near[s], d] - grow
+                    sub_hi[s, d] = hi[near[s], d] + grow
+            sub_origin, sub_dims, sub_start, sub_items = build_grid(sub_lo, sub_hi, reach + grow)
+        for q in range(q0, q1):
+            i = nodes[q]
+            outside = False
+            for d in range(3):
+                g[d] = x[i, d]
+                outside = outside or g[d] < surface_lo[d] or g[d] > surface_hi[d]
+            if outside:
+                continue
+            if c_static[c]:
+                moved2 = 0.0
+                for d in range(3):
+                    moved2 += (g[d] - node_ref[q, d]) ** 2
+                if node_clear[q] > reach and np.sqrt(moved2) < node_clear[q] - reach:
+                    continue
+            # the triangles whose grown box holds the node (a static surface: its grid cell's), ascending
+            n_near = 0
+            if c_static[c]:
+                cell = g_cell[c]
+                cx = int(np.floor((g[0] - g_origin[c, 0]) / cell))
+                cy = int(np.floor((g[1] - g_origin[c, 1]) / cell))
+                cz = int(np.floor((g[2] - g_origin[c, 2]) / cell))
+                if cx < 0 or cy < 0 or cz < 0 or cx >= g_dims[c, 0] or cy >= g_dims[c, 1] or cz >= g_dims[c, 2]:
+                    continue
+                cell_id = g_start_off[c] + (cx * g_dims[c, 1] + cy) * g_dims[c, 2] + cz
+                if g_clearance[cell_id] > reach:  # no triangle within reach of any point of the cell
+                    continue
+                for s in range(g_start[cell_id], g_start[cell_id + 1]):
+                    cand = _append(cand, n_cand + n_near, t0 + g_items[g_items_off[c] + s])
+                    n_near += 1
+            else:
+                cell = reach + grow
+                cx = int(np.floor((g[0] - sub_origin[0]) / cell))
+                cy = int(np.floor((g[1] - sub_origin[1]) / cell))
+                cz = int(np.floor((g[2] - sub_origin[2]) / cell))
+                if cx < 0 or cy < 0 or cz < 0 or cx >= sub_dims[0] or cy >= sub_dims[1] or cz >= sub_dims[2]:
+                    continue
+                cell_id = (cx * sub_dims[1] + cy) * sub_dims[2] + cz
+                pool0, pool1 = sub_start[cell_id], sub_start[cell_id + 1]  # ascending triangles, in sub_items
+                for s in range(pool0, pool1):
+                    t = near[sub_items[s]]
+                    inside = True
+                    for d in range(3):
+                        inside = inside and lo[t, d] <= g[d] <= hi[t, d]
+                    if inside:
+                        cand = _append(cand, n_cand + n_near, t)
+                        n_near += 1
+            # the node's nearest triangle of the last substep first: the box test then drops most of the others (the
+            # result is the same: the last in ascending order among the nearest)
+            first = last_hint[q] if last_hint[q] >= 0 else -1
+            hint, f, b0, b1, b2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, first, cand,
+                                                   n_cand, n_cand + n_near, pa, pb, pc)
+            last_hint[q] = hint
+            if hint < 0:
+                if c_static[c]:
+                    node_clear[q] = _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0, g_origin[c],
+                                                      g_cell[c], g_dims[c], g_start_off[c], g_items_off[c], g_start,
+                                                      g_items, seen, -2 - q, pa, pb, pc)
+                    for d in range(3):
+                        node_ref[q, d] = g[d]
+                continue
+            if c_static[c]:
+                node_clear[q] = 0.0
+            d0 = 0.0
+            for d in range(3):
+                r = g[d] - (b0 * vertex_coordinate(x, static_x, n_nodes, tri_v[hint, 0], d)
+                            + b1 * vertex_coordinate(x, static_x, n_nodes, tri_v[hint, 1], d)
+                            + b2 * vertex_coordinate(x, static_x, n_nodes, tri_v[hint, 2], d))
+                d0 += r * r
+            # a triangle within reach of the node during the sweeps is within reach + 2 c_motion of it now
+            radius = min(np.sqrt(d0) + 4.0 * c_motion[c], reach + 2.0 * c_motion[c])
+            # the listed triangles: within radius of the node (a static surface: from the cells radius around it)
+            n_list = 0
+            if c_static[c]:
+                cell = g_cell[c]
+                for d in range(3):
+                    lo_cell[d] = max(int(np.floor((g[d] - radius - g_origin[c, d]) / cell)), 0)
+                    hi_cell[d] = min(int(np.floor((g[d] + radius - g_origin[c, d]) / cell)), g_dims[c, d] - 1)
+                for ci in range(lo_cell[0], hi_cell[0] + 1):
+                    for cj in range(lo_cell[1], hi_cell[1] + 1):
+                        for ck in range(lo_cell[2], hi_cell[2] + 1):
+                            cell_id = g_start_off[c] + (ci * g_dims[c, 1] + cj) * g_dims[c, 2] + ck
+                            for s in range(g_start[cell_id], g_start[cell_id + 1]):
+                                t = t0 + g_items[g_items_off[c] + s]
+                                if seen[t] != q and _box_distance(g, lo, hi, t, reach) <= radius:
+                                    seen[t] = q
+                                    cand = _append(cand, n_cand + n_list, t)
+                                    n_list += 1
+                cand[n_cand:n_cand + n_list].sort()
+            else:
+                for s in range(pool0, pool1):
+                    t = near[sub_items[s]]
+                    if _box_distance(g, lo, hi, t, reach) <= radius:
+                        cand = _append(cand, n_cand + n_list, t)
+                        n_list += 1
+            entry_node[n_entries], entry_contact[n_entries], entry_hint[n_entries] = i, c, hint
+            n_cand += n_list
+            n_entries += 1
+            entry_start[n_entries] = n_cand
+    return (entry_node[:n_entries].copy(), entry_contact[:n_entries].copy(), entry_hint[:n_entries].copy(),
+            entry_start[:n_entries + 1].copy(), cand[:n_cand].copy())

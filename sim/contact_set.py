@@ -1,0 +1,342 @@
+"""All triangle-surface contacts of a model (``Model.contacts``, ``sim.contact_bodies.SurfaceContact``) as one flat
+set for XPBD: a broad phase once per substep, a narrow phase per Gauss-Seidel sweep over the small candidate lists it
+found, friction once after the sweeps. The constraint, the inside test and the friction are ``sim.contact_mesh``'s
+(module docstring there: Bærentzen & Aanæs 2005, Macklin et al. 2016 eq. 18).
+
+**Broad phase** (:func:`broad_phase`, one call per substep for every contact). A body's surface gets its triangles'
+boxes grown by ``reach`` at the predicted positions and its face normals; a static surface has both from its
+construction and its grid (``SurfaceContactState``). A tested node is *visited* by the substep's sweeps when a
+triangle lies within ``reach`` of it now (the nearest one is its hint, tried first in every sweep), as before: a node
+farther off would have to be moved more than ``reach`` by one substep's corrections to reach the surface. Each
+visited node gets the list of triangles whose grown box lies within ``reach`` of it now (ascending triangle order):
+by the same bound on a substep's motion, every triangle within ``reach`` of it during the sweeps is in the list.
+Edge and angle-weighted vertex normals are computed only for the listed triangles (the vertex sums in ascending face
+order, as a whole-surface pass adds them).
+
+**Narrow phase** (:func:`project_entries`, every sweep): per visited node, the hint and then its list, each triangle
+skipped when its box is farther than the best so far, the closest point and the inside test on the nearest within
+``reach``. The visited nodes, their hints and the triangles tried in the order they are tried give what one grid
+lookup per node and sweep gave (``sim.contact_mesh.project_nodes``: the triangles of the node's cell), so the steps
+are the same bit for bit (tests/sim/test_contact_set.py) at a fraction of the cost (docs/interaction.md).
+
+Vertices: ids below ``n_nodes`` are the model's nodes (positions ``x``, inverse masses ``w``); ids from ``n_nodes``
+on are the static surfaces' points (``static_x``, inverse mass 0).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from sim.contact_broad import broad_phase, cell_clearance, feature_normals, nearest_triangle, vertex_coordinate
+
+
+@njit(cache=True)
+def _listed_motion(x, x_start, n_nodes, tri_v, hint, candidates, c0, c1):
+    """The largest displacement since the broad phase of a vertex of the hint or of the listed triangles."""
+    most = 0.0
+    for s in range(c0 - 1, c1):
+        t = candidates[s] if s >= c0 else hint
+        for k in range(3):
+            v = tri_v[t, k]
+            if v < n_nodes:
+                most = max(most, (x[v, 0] - x_start[v, 0]) ** 2 + (x[v, 1] - x_start[v, 1]) ** 2
+                           + (x[v, 2] - x_start[v, 2]) ** 2)
+    return np.sqrt(most)
+
+
+@njit(cache=True)
+def _keep_clearance(e, g, distance, x, x_start, n_nodes, tri_v, hint, candidates, c0, c1, clear_x, clear_d, clear_m):
+    """Entry e's node at g is outside at ``distance`` (a little less: rounding) from its listed triangles."""
+    clear_d[e] = distance * (1.0 - 1e-9)
+    clear_m[e] = _listed_motion(x, x_start, n_nodes, tri_v, hint, candidates, c0, c1)
+    for d in range(3):
+        clear_x[e, d] = g[d]
+
+
+@njit(cache=True)
+def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact, entry_hint, entry_start, candidates,
+                    all_triangles, c_tri_start, tri_v, tri_adj, tri_lv, lv_start, lv_face, normals_at, substep, face_n,
+                    edge_n, corner_n, lo, hi, c_reach, c_motion, c_closed, clear_x, clear_d, clear_m, c_sign, c_pair,
+                    lam_n, contact_tri, contact_bary, contact_n, loads):
+    """One Gauss-Seidel pass of the contact constraint over the visited nodes (``sim.contact_mesh.project_nodes``'
+    update: both sides moved by their inverse masses); per entry the summed normal impulse, the triangle,
+    barycentrics and normal of its last correction; ``c_sign[c]`` times the impulse and its moment about the origin
+    added to ``loads[c_pair[c]]``. A node searches its candidate list while it has moved less than ``c_motion[c]``
+    since the broad phase (``x_start``), else all of its contact's triangles (``all_triangles``: 0, 1, ...). Returns
+    the number of corrections. A body surface's edge and vertex normals are computed for a triangle when it is
+    first nearest to a node in the substep (``normals_at[t]``: the last ``substep`` they were). A node found outside a
+    closed surface (``c_closed``) at distance ``clear_d[e]`` at ``clear_x[e]`` (its listed vertices then moved
+    ``clear_m[e]`` since the broad phase) stays outside while its motion since and its listed vertices' cannot close
+    that distance (it would have to cross the surface): it is not searched (the same result: an outside node is left
+    alone). ``clear_d[e] = 0``: no such bound."""
+    moved = 0
+    g, pa, pb, pc = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    for e in range(entry_node.size):
+        i, c = entry_node[e], entry_contact[e]
+        for d in range(3):
+            g[d] = x[i, d]
+        motion2 = (g[0] - x_start[i, 0]) ** 2 + (g[1] - x_start[i, 1]) ** 2 + (g[2] - x_start[i, 2]) ** 2
+        listed = motion2 < c_motion[c] * c_motion[c]
+        if listed:
+            if clear_d[e] > 0.0:
+                surface = _listed_motion(x, x_start, n_nodes, tri_v, entry_hint[e], candidates, entry_start[e],
+                                         entry_start[e + 1])
+                node = np.sqrt((g[0] - clear_x[e, 0]) ** 2 + (g[1] - clear_x[e, 1]) ** 2 + (g[2] - clear_x[e, 2]) ** 2)
+                if node + surface + clear_m[e] < clear_d[e]:
+                    continue
+            t, f, b0, b1, b2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
+                                                entry_hint[e], candidates, entry_start[e], entry_start[e + 1], pa, pb,
+                                                pc)
+        else:
+            t, f, b0, b1, b2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
+                                                entry_hint[e], all_triangles, c_tri_start[c], c_tri_start[c + 1], pa,
+                                                pb, pc)
+        clear_d[e] = 0.0
+        if t < 0:
+            if listed and c_closed[c]:  # no listed triangle within reach
+                _keep_clearance(e, g, c_reach[c], x, x_start, n_nodes, tri_v, entry_hint[e], candidates,
+                                entry_start[e], entry_start[e + 1], clear_x, clear_d, clear_m)
+            continue
+        va, vb, vc = tri_v[t, 0], tri_v[t, 1], tri_v[t, 2]
+        if va < n_nodes and normals_at[t] != substep:  # a body surface's, at the broad phase's positions
+            feature_normals(x_start, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edge_n, corner_n)
+            normals_at[t] = substep
+        qx = (b0 * vertex_coordinate(x, static_x, n_nodes, va, 0) + b1 * vertex_coordinate(x, static_x, n_nodes, vb, 0)
+              + b2 * vertex_coordinate(x, static_x, n_nodes, vc, 0))
+        qy = (b0 * vertex_coordinate(x, static_x, n_nodes, va, 1) + b1 * vertex_coordinate(x, static_x, n_nodes, vb, 1)
+              + b2 * vertex_coordinate(x, static_x, n_nodes, vc, 1))
+        qz = (b0 * vertex_coordinate(x, static_x, n_nodes, va, 2) + b1 * vertex_coordinate(x, static_x, n_nodes, vb, 2)
+              + b2 * vertex_coordinate(x, static_x, n_nodes, vc, 2))
+        dx, dy, dz = g[0] - qx, g[1] - qy, g[2] - qz
+        if f < 3:
+            Nx, Ny, Nz = corner_n[t, f, 0], corner_n[t, f, 1], corner_n[t, f, 2]
+        elif f < 6:
+            Nx, Ny, Nz = edge_n[t, f - 3, 0], edge_n[t, f - 3, 1], edge_n[t, f - 3, 2]
+        else:
+            Nx, Ny, Nz = face_n[t, 0], face_n[t, 1], face_n[t, 2]
+        if dx * Nx + dy * Ny + dz * Nz >= 0.0:
+            if listed and c_closed[c]:
+                _keep_clearance(e, g, np.sqrt(dx * dx + dy * dy + dz * dz), x, x_start, n_nodes, tri_v, entry_hint[e],
+                                candidates, entry_start[e], entry_start[e + 1], clear_x, clear_d, clear_m)
+            continue
+        dist = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if dist > 1e-300:  # n: from the node to the surface point (outward)
+            nx, ny, nz = -dx / dist, -dy / dist, -dz / dist
+        else:
+            nx, ny, nz = Nx, Ny, Nz
+        wa = w[va] if va < n_nodes else 0.0
+        wb = w[vb] if vb < n_nodes else 0.0
+        wc = w[vc] if vc < n_nodes else 0.0
+        w_sum = w[i] + b0 * b0 * wa + b1 * b1 * wb + b2 * b2 * wc
+        if w_sum == 0.0:
+            continue
+        dlam = dist / w_sum
+        jx, jy, jz = dlam * nx, dlam * ny, dlam * nz
+        x[i, 0] += w[i] * jx
+        x[i, 1] += w[i] * jy
+        x[i, 2] += w[i] * jz
+        for v, bk, wk in ((va, b0, wa), (vb, b1, wb), (vc, b2, wc)):
+            if v < n_nodes:
+                x[v, 0] -= bk * wk * jx
+                x[v, 1] -= bk * wk * jy
+                x[v, 2] -= bk * wk * jz
+        lam_n[e] += dlam
+        contact_tri[e] = t
+        contact_bary[e, 0], contact_bary[e, 1], contact_bary[e, 2] = b0, b1, b2
+        contact_n[e, 0], contact_n[e, 1], contact_n[e, 2] = nx, ny, nz
+        sign, load = c_sign[c], loads[c_pair[c]]
+        rx, ry, rz = x[i, 0], x[i, 1], x[i, 2]
+        load[0] += sign * jx
+        load[1] += sign * jy
+        load[2] += sign * jz
+        load[3] += sign * (ry * jz - rz * jy)
+        load[4] += sign * (rz * jx - rx * jz)
+        load[5] += sign * (rx * jy - ry * jx)
+        moved += 1
+    return moved
+
+
+@njit(cache=True)
+def friction_entries(x, x_prev, w, n_nodes, entry_node, entry_contact, tri_v, c_mu, c_sign, c_pair, lam_n,
+                     contact_tri, contact_bary, contact_n, loads):
+    """Coulomb friction (``sim.contact_mesh``'s module docstring) on the visited nodes with a normal impulse this
+    substep, for the contacts with ``c_mu > 0``; a static surface does not move."""
+    du = np.empty(3)
+    for e in range(entry_node.size):
+        c = entry_contact[e]
+        if lam_n[e] <= 0.0 or c_mu[c] == 0.0:
+            continue
+        i, t = entry_node[e], contact_tri[e]
+        ws = 0.0
+        for d in range(3):
+            du[d] = x[i, d] - x_prev[i, d]
+        for k in range(3):
+            v = tri_v[t, k]
+            bk = contact_bary[e, k]
+            if v < n_nodes:
+                for d in range(3):
+                    du[d] -= bk * (x[v, d] - x_prev[v, d])
+                ws += bk * bk * w[v]
+            else:
+                ws += bk * bk * 0.0
+        w_sum = w[i] + ws
+        if w_sum == 0.0:
+            continue
+        un = du[0] * contact_n[e, 0] + du[1] * contact_n[e, 1] + du[2] * contact_n[e, 2]
+        tx, ty, tz = du[0] - un * contact_n[e, 0], du[1] - un * contact_n[e, 1], du[2] - un * contact_n[e, 2]
+        slip = np.sqrt(tx * tx + ty * ty + tz * tz)
+        if slip == 0.0:
+            continue
+        mu = c_mu[c]
+        limit = mu * lam_n[e] * w_sum
+        # static: the tangential impulse that stops the relative motion; kinetic: Coulomb's mu lambda_n
+        scale = 1.0 / w_sum if slip < limit else mu * lam_n[e] / slip
+        jx, jy, jz = scale * tx, scale * ty, scale * tz
+        x[i, 0] -= w[i] * jx
+        x[i, 1] -= w[i] * jy
+        x[i, 2] -= w[i] * jz
+        for k in range(3):
+            v = tri_v[t, k]
+            if v < n_nodes:
+                bk = contact_bary[e, k]
+                x[v, 0] += bk * w[v] * jx
+                x[v, 1] += bk * w[v] * jy
+                x[v, 2] += bk * w[v] * jz
+        sign, load = c_sign[c], loads[c_pair[c]]
+        rx, ry, rz = x[i, 0], x[i, 1], x[i, 2]
+        load[0] -= sign * jx
+        load[1] -= sign * jy
+        load[2] -= sign * jz
+        load[3] -= sign * (ry * jz - rz * jy)
+        load[4] -= sign * (rz * jx - rx * jz)
+        load[5] -= sign * (rx * jy - ry * jx)
+
+
+class ContactSet:
+    """The model's surface contacts (``sim.contact_bodies.SurfaceContactState`` each: a static surface's normals,
+    boxes and grid are built there once) as flat arrays over all their triangles; :meth:`begin` at every substep's
+    start, :meth:`project` in every sweep, :meth:`friction` after the sweeps. Each contact's state gets views of its
+    visited nodes' ``active``, ``lam_n``, ``tri``, ``bary``, ``normal`` for the substep."""
+
+    motion_fraction = 0.125
+
+    def __init__(self, contacts: list, n_nodes: int):
+        self.contacts = contacts
+        self.n_nodes = n_nodes
+        statics = [c for c in contacts if c.static]
+        self.static_x = (np.ascontiguousarray(np.concatenate([c.xv for c in statics]), dtype=np.float64) if statics
+                         else np.zeros((0, 3)))
+        tri_v, tri_adj, tri_lv, lv_faces, face_n, edge_n, corner_n, lo, hi = [], [], [], [], [], [], [], [], []
+        g_origin, g_cell, g_dims, g_start, g_items, g_start_off, g_items_off = [], [], [], [], [], [], []
+        g_clear = []
+        tri_start, static_start, lv_count, start_off, items_off = [0], n_nodes, 0, 0, 0
+        for c in contacts:
+            k, t0 = c.faces.shape[0], tri_start[-1]
+            tri_adj.append(np.where(c.adjacent >= 0, c.adjacent + t0, -1))
+            if c.static:
+                tri_v.append(c.faces + static_start)
+                static_start += c.xv.shape[0]
+                tri_lv.append(np.zeros((k, 3), np.int64))
+                face_n.append(c.face_n), edge_n.append(c.edge_n), corner_n.append(c.vert_n[c.faces])
+                lo.append(c.lo), hi.append(c.hi)
+                g_origin.append(c.origin), g_cell.append(c.cell), g_dims.append(c.dims)
+                g_start.append(c.start), g_items.append(c.items)
+                # slightly under the true gap: rounding in the box arithmetic (a few ulps of the coordinates)
+                g_clear.append(cell_clearance(c.origin, c.cell, c.dims, c.lo, c.hi, c.reach) * (1.0 - 1e-9))
+                g_start_off.append(start_off), g_items_off.append(items_off)
+                start_off, items_off = start_off + c.start.size, items_off + c.items.size
+            else:
+                tri_v.append(c.vmap[c.faces])
+                tri_lv.append(c.faces + lv_count)
+                # the faces around each surface vertex, ascending (the order a whole-surface pass adds them in)
+                corner_vertex = c.faces.ravel()
+                order = np.argsort(corner_vertex, kind="stable")
+                lv_faces.append(np.bincount(corner_vertex, minlength=c.vmap.size))
+                lv_faces.append(order // 3 + t0)
+                lv_count += c.vmap.size
+                for name, shape in ((face_n, (k, 3)), (edge_n, (k, 3, 3)), (corner_n, (k, 3, 3)), (lo, (k, 3)),
+                                    (hi, (k, 3))):
+                    name.append(np.zeros(shape))
+                g_origin.append(np.zeros(3)), g_cell.append(1.0), g_dims.append(np.zeros(3, np.int64))
+                g_start_off.append(start_off), g_items_off.append(items_off)
+            tri_start.append(t0 + k)
+        cat = lambda parts, shape, dtype=np.float64: (  # noqa: E731
+            np.ascontiguousarray(np.concatenate(parts), dtype=dtype) if parts else np.zeros(shape, dtype))
+        self.tri_v, self.tri_adj, self.tri_lv = (cat(tri_v, (0, 3), np.int64), cat(tri_adj, (0, 3), np.int64),
+                                                 cat(tri_lv, (0, 3), np.int64))
+        self.lv_start = np.concatenate([[0], np.cumsum(np.concatenate(lv_faces[0::2]) if lv_faces else [])]
+                                       ).astype(np.int64)
+        self.lv_face = cat(lv_faces[1::2], (0,), np.int64)
+        self.face_n, self.edge_n, self.corner_n = cat(face_n, (0, 3)), cat(edge_n, (0, 3, 3)), cat(corner_n, (0, 3, 3))
+        self.lo, self.hi = cat(lo, (0, 3)), cat(hi, (0, 3))
+        self.g_origin, self.g_cell = cat([np.reshape(o, (1, 3)) for o in g_origin], (0, 3)), cat([g_cell], (0,))
+        self.g_dims = cat([np.reshape(d, (1, 3)) for d in g_dims], (0, 3), np.int64)
+        self.g_start, self.g_items = cat(g_start, (0,), np.int64), cat(g_items, (0,), np.int64)
+        self.g_clearance = cat(g_clear, (0,))
+        self.g_start_off, self.g_items_off = cat([g_start_off], (0,), np.int64), cat([g_items_off], (0,), np.int64)
+        self.c_tri_start = np.array(tri_start, dtype=np.int64)
+        self.nodes = cat([c.spec.nodes for c in contacts], (0,), np.int64)
+        self.c_node_start = np.concatenate([[0], np.cumsum([c.spec.nodes.size for c in contacts])]).astype(np.int64)
+        self.c_static = np.array([c.static for c in contacts], dtype=np.bool_)
+        self.c_reach = np.array([c.reach for c in contacts], dtype=np.float64)
+        self.c_sign = np.array([c.spec.sign for c in contacts], dtype=np.float64)
+        self.c_pair = np.array([c.spec.pair for c in contacts], dtype=np.int64)
+        self.c_mu = np.array([c.spec.friction for c in contacts], dtype=np.float64)
+        # a node outside a closed surface cannot get in without crossing it (a body's boundary, a closed static mesh)
+        self.c_closed = np.array([not c.static or bool((c.adjacent >= 0).all()) for c in contacts], dtype=np.bool_)
+        # a node moved this far within the sweeps searches all its contact's triangles, else its list (broad_phase):
+        # an eighth of reach, above what one substep's corrections usually move a node
+        self.c_motion = self.motion_fraction * self.c_reach
+        self.all_triangles = np.arange(self.tri_v.shape[0], dtype=np.int64)
+        self.x_start = np.zeros((n_nodes, 3))
+        self.node_ref, self.node_clear = np.zeros((self.nodes.size, 3)), np.zeros(self.nodes.size)
+        self.last_hint = np.full(self.nodes.size, -1, np.int64)
+        self.normals_at = np.full(self.tri_v.shape[0], -1, np.int64)  # feature normals: the substep they are of
+        self.substep = 0
+        self.begin(None)
+
+    def begin(self, x: np.ndarray | None) -> None:
+        """At a substep's start (after the prediction): the visited nodes, their hints and candidate triangles at
+        ``x`` (:func:`broad_phase`); multipliers reset. ``None``: none visited."""
+        if x is None or not self.contacts:
+            empty = np.zeros(0, np.int64)
+            self.entry_node, self.entry_contact, self.entry_hint, self.candidates = empty, empty, empty, empty
+            self.entry_start = np.zeros(1, np.int64)
+        else:
+            self.x_start[:] = x
+            self.substep += 1
+            (self.entry_node, self.entry_contact, self.entry_hint, self.entry_start,
+             self.candidates) = broad_phase(
+                x, self.static_x, self.n_nodes, self.c_static, self.c_reach, self.c_motion, self.c_node_start,
+                self.nodes, self.c_tri_start, self.tri_v, self.g_origin, self.g_cell, self.g_dims, self.g_start_off,
+                self.g_items_off, self.g_start, self.g_items, self.g_clearance, self.node_ref, self.node_clear,
+                self.last_hint, self.face_n, self.lo, self.hi)
+        e = self.entry_node.size
+        self.lam_n, self.tri = np.zeros(e), np.zeros(e, dtype=np.int64)
+        self.bary, self.normal = np.zeros((e, 3)), np.zeros((e, 3))
+        self.clear_x, self.clear_d, self.clear_m = np.zeros((e, 3)), np.zeros(e), np.zeros(e)
+        bounds = np.searchsorted(self.entry_contact, np.arange(len(self.contacts) + 1))
+        for k, c in enumerate(self.contacts):
+            part = slice(bounds[k], bounds[k + 1])
+            c.active = self.entry_node[part]
+            c.lam_n, c.tri, c.bary, c.normal = self.lam_n[part], self.tri[part], self.bary[part], self.normal[part]
+
+    def arrays(self) -> tuple:
+        """The narrow phase's arguments after ``x, w`` (:func:`project_entries`, up to ``loads``)."""
+        return (self.x_start, self.static_x, self.n_nodes, self.entry_node, self.entry_contact, self.entry_hint,
+                self.entry_start, self.candidates, self.all_triangles, self.c_tri_start, self.tri_v, self.tri_adj,
+                self.tri_lv, self.lv_start, self.lv_face, self.normals_at, self.substep, self.face_n,
+                self.edge_n, self.corner_n, self.lo, self.hi, self.c_reach, self.c_motion, self.c_closed, self.clear_x,
+                self.clear_d, self.clear_m, self.c_sign, self.c_pair,
+                self.lam_n, self.tri, self.bary, self.normal)
+
+    def project(self, x: np.ndarray, w: np.ndarray, loads: np.ndarray) -> int:
+        """One pass over the visited nodes; adds the impulses to ``loads`` (pairs, 6) (:func:`project_entries`)."""
+        if not self.entry_node.size:
+            return 0
+        return int(project_entries(x, w, *self.arrays(), loads))
+
+    def friction(self, x: np.ndarray, x_prev: np.ndarray, w: np.ndarray, loads: np.ndarray) -> None:
+        if self.entry_node.size:
+            friction_entries(x, x_prev, w, self.n_nodes, self.entry_node, self.entry_contact, self.tri_v, self.c_mu,
+                             self.c_sign, self.c_pair, self.lam_n, self.tri, self.bary, self.normal, loads)

@@ -1,0 +1,89 @@
+"""The contact broad phase and the fused sweeps (issue 21, "Performance"; ``sim.contact_set``, ``sim.contact_broad``,
+``sim.integrators.xpbd.sweeps``) change the cost, not the result: a stack of two blocks on a floor, with friction,
+a capsule tool pushing into the top and a grasp, steps bit for bit the same with the candidate lists as with every
+triangle searched in every sweep, and with one compiled call per substep as with the per-sweep Python loop."""
+import numpy as np
+
+from sim.contact import ContactPlane, Grasp
+from sim.contact_bodies import add_body_contact, merge_models
+from sim.contact_broad import _static_clearance
+from sim.contact_bodies import SurfaceContact, SurfaceContactState
+from sim.contact_mesh import closest_on_triangle
+from sim.contact_set import ContactSet
+from sim.integrators import make_integrator
+from sim.integrators.xpbd import sweeps
+from sim.mesh import procedural
+from sim.model import Model, State
+from sim.probe import Probe
+
+
+def _stack():
+    blocks = []
+    for size, origin in (((0.1, 0.1, 0.04), (0.0, 0.0, 0.0)), ((0.06, 0.06, 0.03), (0.021, 0.017, 0.041))):
+        mesh = procedural.box(size, (3, 3, 2), origin=origin)
+        blocks.append(Model.from_mesh(mesh, E=1e5, nu=0.3, density=1000.0, gravity=np.array([0.0, 0.0, -9.81])))
+    blocks[0].contact_planes = [ContactPlane([0.0, 0.0, 0.0], [0.0, 0.0, 1.0], friction=0.5)]
+    group = merge_models(blocks)
+    add_body_contact(group, 0, 1, friction=0.4, pair=0)
+    model = group.model
+    # a capsule pressing the upper block's top down and sideways, grasping what it touches from 0.1 s
+    model.probes = [Probe("capsule", 0.008, [0.0, 0.2], [[0.05, 0.05, 0.08], [0.055, 0.05, 0.076]],
+                          axis=[1.0, 0.0, 0.0], length=0.03)]
+    model.grasps = [Grasp(probe=0, t_close=0.1, t_release=1.0, radius=0.02)]
+    return model
+
+
+def _steps(model, steps=12, dt=0.02):
+    integrator = make_integrator("xpbd", model, {"substeps": 5, "iterations": 5, "damping": 5.0})
+    state, loads = State.at_rest(model), []
+    for _ in range(steps):
+        state = integrator.step(state, dt)
+        loads.append(np.concatenate([integrator.tool_loads.ravel(), integrator.plane_loads.ravel(),
+                                     integrator.contact_loads.ravel()]))
+    return integrator, state, np.array(loads)
+
+
+def test_candidate_lists_and_the_fused_sweeps_step_bit_for_bit_as_full_searches_in_python_sweeps():
+    model = _stack()
+    fused, state, loads = _steps(model)
+    assert fused.fused is not None  # the fused path ran
+    # real work in every part: the tool pushed, the grasp held nodes, the blocks pressed each other and the floor
+    assert np.abs(loads[-1, 0:3]).max() > 0.1 and fused.grasps[0].nodes.size > 0
+    assert loads[-1, 8] < -1.0 and np.abs(loads[-1, 12:15]).max() > 0.1
+    covers, fraction = sweeps.FusedSweeps.covers, ContactSet.motion_fraction
+    try:
+        sweeps.FusedSweeps.covers = staticmethod(lambda xpbd, probes: False)  # the per-sweep Python loop
+        ContactSet.motion_fraction = 0.0  # no node is ever still enough: every sweep searches every triangle
+        loop, state_ref, loads_ref = _steps(model)
+    finally:
+        sweeps.FusedSweeps.covers, ContactSet.motion_fraction = covers, fraction
+    assert loop.fused is None
+    assert np.array_equal(state.x, state_ref.x) and np.array_equal(state.v, state_ref.v)
+    assert np.array_equal(loads, loads_ref)
+
+
+def test_a_static_surface_clearance_is_its_distance_capped_at_two_reach():
+    """A node skipped by the static broad phase is farther than reach from the surface: the clearance it is given is
+    the brute-force distance to the surface (or 2 reach when farther), less its 1e-9 relative safety margin."""
+    rng = np.random.default_rng(7)
+    u = np.linspace(-0.2, 0.2, 6)
+    gx, gy = np.meshgrid(u, u, indexing="ij")
+    points = np.stack([gx.ravel(), gy.ravel(), 0.02 * np.sin(9.0 * gx.ravel())], axis=1)
+    k = np.arange(5 * 6).reshape(5, 6)[:, :5].ravel()
+    faces = np.concatenate([np.stack([k, k + 6, k + 7], 1), np.stack([k, k + 7, k + 1], 1)])
+    state = SurfaceContactState(SurfaceContact(np.zeros(0), faces, points), np.zeros((0, 3)))
+    cs = ContactSet([state], 0)
+    seen = np.full(faces.shape[0], -1, np.int64)
+    scratch = [np.empty(3) for _ in range(3)]
+    checked = 0
+    for q, g in enumerate(rng.uniform([-0.25, -0.25, -0.1], [0.25, 0.25, 0.15], (200, 3))):
+        brute = min(np.linalg.norm(g - sum(b * points[f[j]] for j, b in enumerate(closest_on_triangle(
+            g, *points[f])[:3]))) for f in faces)
+        clear = _static_clearance(g, np.zeros((0, 3)), cs.static_x, 0, cs.tri_v, cs.lo, cs.hi, state.reach, 0,
+                                  cs.g_origin[0], cs.g_cell[0], cs.g_dims[0], cs.g_start_off[0], cs.g_items_off[0],
+                                  cs.g_start, cs.g_items, seen, -2 - q, *scratch)
+        expected = min(brute, 2.0 * state.reach)
+        # 1e-9 relative margin, and the distance's own rounding: a few ulps of 0.1 m coordinates (1e-15 m)
+        assert expected * (1.0 - 1e-9) - 1e-14 <= clear <= expected * (1.0 - 1e-9) + 1e-14
+        checked += brute < 2.0 * state.reach
+    assert checked > 50  # most points near enough for a true distance, not the cap
