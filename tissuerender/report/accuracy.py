@@ -267,7 +267,6 @@ def _run_cases_on_dask(todo: dict, results: dict, units: dict, bar, workers, sch
 
 
 NOT_COVERED = [
-    "mesh-converged references (quadratic tets, several levels) for the Zhang cases: only the cantilever has them",
     "the viscoelastic cube",
 ]
 

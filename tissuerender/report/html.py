@@ -14,6 +14,7 @@ matplotlib.use("Agg")  # off-screen: no display on a render node
 import matplotlib.pyplot as plt  # noqa: E402
 
 from tissuerender.report import discretisation  # noqa: E402
+from tissuerender.report import zhang_mesh  # noqa: E402
 
 COLOURS = {"xpbd": "tab:blue", "ebm": "tab:orange", "explicit": "tab:red", "cnn": "tab:green",
            "cnn_chainmail": "tab:purple"}
@@ -453,7 +454,7 @@ def cnn_cube_section(case: dict) -> str:
 
 SECTIONS = {"cnn_cube": cnn_cube_section, "indentation": indentation_section,
             "liver_variational": variational_section, "mitsuba": mitsuba_section,
-            discretisation.CASE: discretisation.section_html}
+            discretisation.CASE: discretisation.section_html, zhang_mesh.CASE: zhang_mesh.section_html}
 
 def render_html(report: dict) -> str:
     cases = report["cases"]
