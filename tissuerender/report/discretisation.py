@@ -140,6 +140,13 @@ def figure_png(case: dict) -> bytes:
                                                     (case["quadratic"], "quadratic tets", "s"))],
                 "relative tip error [-]")
     fig.suptitle(case["title"] + (" (cached)" if case.get("cached") else ""), fontsize=10)
+    return png_bytes(fig)
+
+
+def png_bytes(fig) -> bytes:
+    """The figure as PNG bytes (no software stamp, so the same data give the same bytes); closes it."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", metadata={"Software": None})

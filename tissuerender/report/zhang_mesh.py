@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import time
 
 import numpy as np
@@ -37,7 +36,7 @@ from sim.cases.cantilever import richardson
 from sim.cases.zhang import Case, zhang_case
 from sim.integrators.reference_quadratic import QuadraticModel, reference_for
 from sim.model import State
-from tissuerender.report.discretisation import QUADRATIC_ORDER, error_panel, num, table
+from tissuerender.report.discretisation import QUADRATIC_ORDER, error_panel, num, png_bytes, table
 from tissuerender.report.measure import line_errors
 
 CASE = "zhang_mesh"
@@ -154,7 +153,7 @@ def mesh_bound(study: dict, case_name: str, case_tets: int | None, statistic: st
     line at the level of the case's mesh (the level with its tet count, else the report's level, said so); None when
     the study did not run the case."""
     case = study["cases"].get(case_name)
-    if case is None or not case["linear"]:
+    if case is None or not case["linear"] or case_tets is None:
         return None
     exact = [r for r in case["linear"] if r["tets"] == case_tets]
     row = exact[0] if exact else case["report_mesh"]["linear"] or case["linear"][0]
@@ -189,11 +188,7 @@ def figure_png(case: dict, cached: bool) -> bytes:
                 "line RMSE against the converged line [m]")
     fig.suptitle(f"Zhang §5.3.2 {case['case'].replace('_', ' ')}: mesh levels" + (" (cached)" if cached else ""),
                  fontsize=10)
-    fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", metadata={"Software": None})
-    plt.close(fig)
-    return buffer.getvalue()
+    return png_bytes(fig)
 
 
 def section_html(study: dict) -> str:
