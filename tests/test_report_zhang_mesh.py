@@ -72,7 +72,7 @@ def test_report_html_has_a_figure_and_table_per_zhang_case(report):
     text = (out / "report.html").read_text()
     assert f'id="case-{zhang_mesh.CASE}"' in text
     for name in SWEEP["cases"]:
-        assert f'data-figure="{name}"' in text and f'id="zhang-mesh-{name}"' in text
+        assert f'data-figure="levels-{name.replace("_", "-")}"' in text and f'id="zhang-mesh-{name}"' in text
     assert text.count(f'class="{zhang_mesh.CASE}"') == len(SWEEP["cases"])
     assert "How far linear tets on the case's mesh are" in text
     assert "mesh-converged references" not in "".join(accuracy.NOT_COVERED)

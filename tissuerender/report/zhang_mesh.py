@@ -218,7 +218,7 @@ def section_html(study: dict) -> str:
                  num(r["line_rmse_m"]), r["newton_iterations_last"], num(r["wall_s"])]
                 for e in ELEMENTS for r in case[e]]
         parts += [f'<h3 id="zhang-mesh-{name}">{html.escape(name.replace("_", " "))}</h3>',
-                  f'<img class="figure" data-case="{CASE}" data-figure="{name}" alt="line displacement per level '
+                  f'<img class="figure" data-case="{CASE}" data-figure="levels-{name.replace("_", "-")}" alt="line displacement per level '
                   f'and line error against tets" src="data:image/png;base64,{png}">',
                   f"<p><b>Mesh-converged</b> ({html.escape(conv['how'])}): mid-line u_{case['component']} "
                   f"<b>{num(conv['mid_u_m'])} m</b> at {num(case['mid_coord_m'])} m. <b>How far linear tets on the "
