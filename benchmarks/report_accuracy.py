@@ -77,6 +77,15 @@ def main() -> None:
                 result[f"cantilever_{kind}_L{row['level']}_err"] = float(f"{row['relative_error']:.4g}")
             result["cantilever_converged_tip_m"] = float(f"{case['converged_tip_m']:.6g}")
             continue
+        if name == "zhang_mesh":  # tissuerender/report/zhang_mesh.py
+            for zhang, levels in case["cases"].items():
+                print(f"{zhang}: converged by {levels['converged']['how']}")
+                for element in ("linear", "linear_anp", "quadratic"):
+                    for row in levels[element]:
+                        print(f"  {element:10s} level {row['level']} {row['tets']:7d} tets mid {row['mid_u_m']:.5f} m "
+                              f"line max {row['line_max_m']:.4g} m RMSE {row['line_rmse_m']:.4g} m")
+            result.update({f"zhang_mesh_{k}": float(f"{v:.4g}") for k, v in case["measures"].items()})
+            continue
         print(f"\n{case['title']} ({case['error_label']}; reference order "
               f"{', '.join(f'{o:.2f}' for o in case['convergence']['orders'])}, expected "
               f"{case['convergence']['expected_order']})")
