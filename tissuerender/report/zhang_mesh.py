@@ -174,10 +174,12 @@ def figure_png(case: dict, cached: bool) -> bytes:
     import matplotlib.pyplot as plt
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(9.6, 3.8), dpi=80)
-    for element, style in (("linear", "--"), ("linear_anp", ":"), ("quadratic", "-")):
-        for row in (case[element][0], case[element][-1]) if case[element] else ():
-            left.plot(row["own_line_coord_m"], row["own_line_u_m"], style, lw=1,
-                      label=f"{LABELS[element]}, level {row['level']}")
+    for element, style, colour in (("linear", "--", "tab:blue"), ("linear_anp", ":", "tab:orange"),
+                                   ("quadratic", "-", "tab:green")):
+        rows = case[element]
+        for row in rows[:1] + rows[1:][-1:]:  # the coarsest and the finest level
+            left.plot(row["own_line_coord_m"], row["own_line_u_m"], style, color=colour,
+                      lw=1.8 if row is rows[-1] else 0.9, label=f"{LABELS[element]}, level {row['level']}")
     left.plot(case["line_coord_m"], case["converged"]["line_u_m"], "ko", ms=3, label="mesh-converged")
     left.set_xlabel("along the line [m]")
     left.set_ylabel(f"u_{case['component']} [m]")
