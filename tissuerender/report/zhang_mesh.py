@@ -49,7 +49,7 @@ SWEEPS = {
     "full": {"cases": ["cylinder_extension", "cylinder_compression", "cube_shear"], "cylinder_h": 0.25,
              "cube_cells": 4, "linear_levels": [0, 1, 2], "anp_levels": [0, 1], "quadratic_levels": [0, 1],
              "load_steps": 4, "report_mesh_level": 1},
-    # at most the case's mesh and one refinement, on one case (issue 17: --quick under 5 minutes)
+    # at most the case's mesh and one refinement, on one case (issue 17's budget for --quick)
     "quick": {"cases": ["cube_shear"], "cylinder_h": 0.25, "cube_cells": 4, "linear_levels": [0, 1],
               "anp_levels": [0], "quadratic_levels": [0], "load_steps": 4, "report_mesh_level": 0},
     # the test suite's: a 2-cell cube (48 tets at level 0)
