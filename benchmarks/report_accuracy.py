@@ -91,6 +91,14 @@ def main() -> None:
                 result[f"{key}_err"] = None if err is None else float(f"{err:.4g}")
                 result[f"{key}_s_per_sim_s"] = float(f"{p['wall_s_per_sim_s']:.4g}")
             result["viscoelastic_cube_tau_s"] = float(f"{case['measures']['tau_s']:.5g}")
+        if name == "zhang_mesh":  # tissuerender/report/zhang_mesh.py
+            for zhang, levels in case["cases"].items():
+                print(f"{zhang}: converged by {levels['converged']['how']}")
+                for element in ("linear", "linear_anp", "quadratic"):
+                    for row in levels[element]:
+                        print(f"  {element:10s} level {row['level']} {row['tets']:7d} tets mid {row['mid_u_m']:.5f} m "
+                              f"line max {row['line_max_m']:.4g} m RMSE {row['line_rmse_m']:.4g} m")
+            result.update({f"zhang_mesh_{k}": float(f"{v:.4g}") for k, v in case["measures"].items()})
             continue
         print(f"\n{case['title']} ({case['error_label']}; reference order "
               f"{', '.join(f'{o:.2f}' for o in case['convergence']['orders'])}, expected "

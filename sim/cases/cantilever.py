@@ -23,8 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.errors import SimulationDiverged
-from sim.integrators.reference import ReferenceIntegrator
-from sim.integrators.reference_quadratic import QuadraticReferenceIntegrator, quadratic_model
+from sim.integrators.reference_quadratic import quadratic_model, reference_for
 from sim.mesh import procedural, select
 from sim.model import Model
 
@@ -79,7 +78,7 @@ def solve_cantilever(level: int, quadratic: bool, load_steps: int = 8, nu: float
     start = time.perf_counter()
     model = cantilever_model(level, quadratic, nu, gravity_scale, base)
     settings = {"mode": "quasistatic", "tol": tol, "anp": anp}
-    solver = QuadraticReferenceIntegrator(model, settings) if quadratic else ReferenceIntegrator(model, settings)
+    solver = reference_for(model, settings)
     g_full = model.gravity.copy()
     x = model.X.copy()
     previous = None  # (load fraction, positions) of the equilibrium before x
@@ -112,7 +111,7 @@ def small_load_tip_deflection(level: int, quadratic: bool, nu: float = NU, base=
     """The small-deflection limit [m] per unit gravity scale: one linear solve ``K u = f`` with the tangent stiffness
     at rest (linear elasticity for every law), the same element and boundary conditions as :func:`solve_cantilever`."""
     model = cantilever_model(level, quadratic, nu, 1.0, base)
-    solver = (QuadraticReferenceIntegrator if quadratic else ReferenceIntegrator)(model, {"mode": "quasistatic"})
+    solver = reference_for(model, {"mode": "quasistatic"})
     free = ~np.repeat(model.kinematic_mask(), 3)
     K = solver._hessian(model.X, 1.0, project=False).tocsr()[free][:, free]
     u = np.zeros(3 * model.n_nodes)

@@ -11,6 +11,13 @@ accuracy tests and the accuracy benchmark.
 
 Material: E = 3000 Pa, nu = 0.49, rho = 1000 kg/m^3, the Neo-Hookean form of Zhang eq. 5.35 unless
 another constitutive model is asked for.
+
+Mesh levels (the report's mesh-converged references, ``tissuerender.report.zhang_mesh``): ``level`` k refines the
+case's mesh k times (1 tet -> 8, ``sim.mesh.refine``) and ``quadratic`` puts 10-node tets on it
+(``sim.integrators.reference_quadratic``). Both keep the case mesh's nodes first with their indices, so ``x[:n]`` of
+any level is at the case mesh's nodes; edges stay straight, so every level meshes the case mesh's polyhedron (the
+cylinder's facets are not refined towards the round surface). The boundary conditions hold every node on the faces
+(edge midpoints included); ``line`` lists the level's own nodes on the measurement line.
 """
 from __future__ import annotations
 
@@ -19,7 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.constitutive import elastic
+from sim.integrators.reference_quadratic import quadratic_model
 from sim.mesh import procedural, select
+from sim.mesh.refine import refine
+from sim.mesh.types import TetMesh
 from sim.model import Model, PrescribedDisplacement
 
 
@@ -30,6 +40,7 @@ class Case:
     line: np.ndarray  # node ids on the measurement line, sorted along it
     line_coord: np.ndarray  # their coordinate along the line [m]
     ramp_time: float  # the prescribed motion ramps over [0, ramp_time] s
+    component: int = 0  # the displacement component the thesis plots along the line (Figs. 5.5(c)-5.7(c))
 
 
 def _line_nodes(points, fixed_axes: dict[int, float], along: int, tol: float):
@@ -41,32 +52,50 @@ def _line_nodes(points, fixed_axes: dict[int, float], along: int, tol: float):
     return idx[order], points[idx[order], along]
 
 
+def _level_model(mesh: TetMesh, level: int, quadratic: bool, **material) -> Model:
+    """The model on ``mesh`` refined ``level`` times, on linear or quadratic tets (module docstring)."""
+    for _ in range(level):
+        mesh = refine(mesh)
+    return quadratic_model(mesh, **material) if quadratic else Model.from_mesh(mesh, **material)
+
+
 def zhang_cylinder(h: float = 0.125, displacement: float = 0.4, constitutive: str = "neo_hookean",
                    E: float = 3000.0, nu: float = 0.49, density: float = 1000.0, slide: bool = False,
-                   ramp_time: float = 1.0) -> Case:
+                   ramp_time: float = 1.0, level: int = 0, quadratic: bool = False) -> Case:
     mesh = procedural.cylinder(2.0, 0.5, h)
-    model = Model.from_mesh(mesh, E=E, nu=nu, density=density, constitutive=constitutive)
-    left = select.nodes_on_side(mesh.points, 2, "min")
-    right = select.nodes_on_side(mesh.points, 2, "max")
+    model = _level_model(mesh, level, quadratic, E=E, nu=nu, density=density, constitutive=constitutive)
+    points = model.X
+    left = select.nodes_on_side(points, 2, "min")
+    right = select.nodes_on_side(points, 2, "max")
     model.fixed[left] = True
     held = np.array([[0.0, 0.0, 1.0]]) if slide else None  # a roller face: only the axial component imposed
     model.prescribed.append(PrescribedDisplacement(right, np.array([0.0, 0.0, displacement]), 0.0, ramp_time, held))
-    line, coord = _line_nodes(mesh.points, {1: 0.0, 0: 0.5}, 2, 0.25 * h)
+    spacing = h / 2 ** (level + quadratic)  # the node spacing of the level
+    line, coord = _line_nodes(points, {1: 0.0, 0: 0.5}, 2, 0.25 * spacing)
     kind = "extension" if displacement > 0 else "compression"
     return Case(f"cylinder_{kind}", model, line, coord, ramp_time)
 
 
 def zhang_cube_shear(n_cells: int = 8, displacement: float = 0.5, constitutive: str = "neo_hookean",
                      E: float = 3000.0, nu: float = 0.49, density: float = 1000.0,
-                     ramp_time: float = 1.0) -> Case:
+                     ramp_time: float = 1.0, level: int = 0, quadratic: bool = False) -> Case:
     mesh = procedural.cube(2.0, n_cells)
-    model = Model.from_mesh(mesh, E=E, nu=nu, density=density, constitutive=constitutive)
-    model.fixed[select.nodes_on_side(mesh.points, 1, "min")] = True
-    top = select.nodes_on_side(mesh.points, 1, "max")
+    model = _level_model(mesh, level, quadratic, E=E, nu=nu, density=density, constitutive=constitutive)
+    points = model.X
+    model.fixed[select.nodes_on_side(points, 1, "min")] = True
+    top = select.nodes_on_side(points, 1, "max")
     model.prescribed.append(PrescribedDisplacement(top, np.array([0.0, 0.0, displacement]), 0.0, ramp_time))
-    tol = 0.25 * 2.0 / n_cells
-    line, coord = _line_nodes(mesh.points, {0: 2.0, 1: 1.0}, 2, tol)
-    return Case("cube_shear", model, line, coord, ramp_time)
+    tol = 0.25 * 2.0 / n_cells / 2 ** (level + quadratic)
+    line, coord = _line_nodes(points, {0: 2.0, 1: 1.0}, 2, tol)
+    return Case("cube_shear", model, line, coord, ramp_time, component=2)
+
+
+def zhang_case(name: str, cylinder_h: float, cube_cells: int, level: int = 0, quadratic: bool = False) -> Case:
+    """The report's case ``name`` (cylinder_extension, cylinder_compression: +-0.4 m; cube_shear) at mesh ``level``."""
+    if name == "cube_shear":
+        return zhang_cube_shear(n_cells=cube_cells, level=level, quadratic=quadratic)
+    displacement = {"cylinder_extension": 0.4, "cylinder_compression": -0.4}[name]
+    return zhang_cylinder(h=cylinder_h, displacement=displacement, level=level, quadratic=quadratic)
 
 
 def start_positions(model) -> np.ndarray:

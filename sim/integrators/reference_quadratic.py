@@ -162,3 +162,8 @@ class QuadraticReferenceIntegrator(ReferenceIntegrator):
         GT = np.einsum("mqaj,mqijkl->mqaikl", self.grad_N, T)
         H = np.einsum("m,mqaikl,mqbl->maibk", self.weight, GT, self.grad_N)
         return H.reshape(m, 30, 30)
+
+
+def reference_for(model: Model, settings: ReferenceSettings | dict | None = None) -> ReferenceIntegrator:
+    """The reference integrator for ``model``: on quadratic tets for a :class:`QuadraticModel`, else on linear ones."""
+    return (QuadraticReferenceIntegrator if isinstance(model, QuadraticModel) else ReferenceIntegrator)(model, settings)

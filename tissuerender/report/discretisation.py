@@ -93,8 +93,23 @@ def run_discretisation(sweep: dict, tick=lambda: None) -> dict:
 
 # --- the HTML section ------------------------------------------------------------------------------------------
 
-def _num(value) -> str:
+def num(value) -> str:
     return "–" if value is None else f"{value:.4g}" if isinstance(value, float) else html.escape(str(value))
+
+
+def error_panel(ax, series, ylabel: str) -> None:
+    """Error against tets on log-log axes, one line per ``(label, marker, tets, errors)`` of ``series`` (zero
+    errors, the reference level itself, left out)."""
+    for label, marker, tets, errors in series:
+        ok = [(t, e) for t, e in zip(tets, errors) if e is not None and e > 0.0]
+        if ok:
+            ax.plot([t for t, _ in ok], [e for _, e in ok], marker=marker, label=label)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("tets")
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
 
 
 def figure_png(case: dict) -> bytes:
@@ -114,22 +129,24 @@ def figure_png(case: dict) -> bytes:
     left.set_ylabel("tip deflection [m]")
     left.legend(fontsize=8)
     left.grid(True, which="both", alpha=0.3)
-    for rows, label, marker in ((case["linear"], "linear tets", "o"), (case["quadratic"], "quadratic tets", "s")):
-        ok = [r for r in rows if r["relative_error"] > 0.0]
-        right.plot([r["tets"] for r in ok], [r["relative_error"] for r in ok], marker=marker, label=label)
     right.axhline(TARGET, color="tab:red", ls=":", lw=1, label="1 %")
     reach = case["to_reach_1pct"]
     if reach["how"] == "extrapolated" and case["linear"]:
         last = case["linear"][-1]
         right.plot([last["tets"], reach["tets"]], [last["relative_error"], TARGET], "k:", lw=1,
                    label="observed rate, extrapolated")
-    right.set_xscale("log")
-    right.set_yscale("log")
-    right.set_xlabel("tets")
-    right.set_ylabel("relative tip error [-]")
-    right.legend(fontsize=8)
-    right.grid(True, which="both", alpha=0.3)
+    error_panel(right, [(label, marker, [r["tets"] for r in rows], [r["relative_error"] for r in rows])
+                        for rows, label, marker in ((case["linear"], "linear tets", "o"),
+                                                    (case["quadratic"], "quadratic tets", "s"))],
+                "relative tip error [-]")
     fig.suptitle(case["title"] + (" (cached)" if case.get("cached") else ""), fontsize=10)
+    return png_bytes(fig)
+
+
+def png_bytes(fig) -> bytes:
+    """The figure as PNG bytes (no software stamp, so the same data give the same bytes); closes it."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", metadata={"Software": None})
@@ -137,18 +154,18 @@ def figure_png(case: dict) -> bytes:
     return buffer.getvalue()
 
 
-def _table(headers, rows) -> str:
+def table(headers, rows, css: str = "discretisation") -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
-    return f'<table class="discretisation"><tr>{head}</tr>{body}</table>'
+    return f'<table class="{css}"><tr>{head}</tr>{body}</table>'
 
 
 def section_html(case: dict) -> str:
     sweep, rich, reach, claim, lock = (case["sweep"], case["richardson"], case["to_reach_1pct"], case["issue_claim"],
                                        case["locking"])
     png = base64.b64encode(figure_png(case)).decode("ascii")
-    rows = [[("quadratic" if r["quadratic"] else "linear"), r["level"], r["tets"], r["nodes"], _num(r["tip_deflection"]),
-             _num(r["tip_axial"]), f"{100 * r['relative_error']:.3g} %", r["newton_iterations"], _num(r["wall_s"])]
+    rows = [[("quadratic" if r["quadratic"] else "linear"), r["level"], r["tets"], r["nodes"], num(r["tip_deflection"]),
+             num(r["tip_axial"]), f"{100 * r['relative_error']:.3g} %", r["newton_iterations"], num(r["wall_s"])]
             for r in case["linear"] + case["quadratic"]]
     if reach["how"] == "measured":
         reach_text = f"level {reach['level']} ({reach['tets']:,} tets) is within 1 %"
@@ -158,11 +175,11 @@ def section_html(case: dict) -> str:
                       f"{reach['tets']:,.0f} linear tets")
     else:
         reach_text = reach["how"]
-    lock_rows = [["linear", lock["linear_level"], lock["linear"]["tets"], _num(lock["linear"]["tip_deflection"]),
-                  _num(lock["linear"]["relative_to_quadratic"])],
+    lock_rows = [["linear", lock["linear_level"], lock["linear"]["tets"], num(lock["linear"]["tip_deflection"]),
+                  num(lock["linear"]["relative_to_quadratic"])],
                  ["linear + ANP", lock["linear_level"], lock["linear_anp"]["tets"],
-                  _num(lock["linear_anp"]["tip_deflection"]), _num(lock["linear_anp"]["relative_to_quadratic"])]]
-    lock_rows += [["quadratic", r["level"], r["tets"], _num(r["tip_deflection"]), "1" if r is lock["quadratic"][-1]
+                  num(lock["linear_anp"]["tip_deflection"]), num(lock["linear_anp"]["relative_to_quadratic"])]]
+    lock_rows += [["quadratic", r["level"], r["tets"], num(r["tip_deflection"]), "1" if r is lock["quadratic"][-1]
                    else "–"] for r in lock["quadratic"]]
     cached = " <em>(cached)</em>" if case.get("cached") else ""
     return "\n".join([
@@ -175,14 +192,14 @@ def section_html(case: dict) -> str:
         f"integrators' errors in the other sections are against the reference on their own mesh.</p>",
         f"<p><b>Mesh-converged tip deflection</b> (Richardson, quadratic levels {sweep['quadratic_levels']}, "
         f"{rich['order_source']} order {rich['order_used']:.2f}): <b>{case['converged_tip_m']:.5g} m</b> "
-        f"(estimated error of the finest quadratic level {_num(rich['error_estimate'])} m).</p>",
+        f"(estimated error of the finest quadratic level {num(rich['error_estimate'])} m).</p>",
         f"<p><b>What it takes to reach 1 % with linear tets:</b> {html.escape(reach_text)}.</p>",
         f"<p>The issue's figure ({html.escape(claim['source'])}): <b>{claim['verdict']}</b>"
         + (f", ours {100 * claim['ours']:.2f} %" if claim["ours"] is not None else "")
         + f" — {html.escape(claim['reason'])}.</p>",
-        _table(["elements", "level", "tets", "nodes", "tip deflection [m]", "tip u_x [m]", "error", "Newton it.",
+        table(["elements", "level", "tets", "nodes", "tip deflection [m]", "tip u_x [m]", "error", "Newton it.",
                 "wall [s]"], rows),
         f"<h3>Near-incompressible locking (nu = {lock['nu']:g})</h3>"
         f"<p>Tip deflection relative to the finest quadratic level at the same nu.</p>",
-        _table(["elements", "level", "tets", "tip deflection [m]", "relative"], lock_rows),
+        table(["elements", "level", "tets", "tip deflection [m]", "relative"], lock_rows),
     ])

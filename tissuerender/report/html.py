@@ -15,6 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from tissuerender.report import discretisation  # noqa: E402
 from tissuerender.report import viscoelastic  # noqa: E402
+from tissuerender.report import zhang_mesh  # noqa: E402
 
 COLOURS = {"xpbd": "tab:blue", "ebm": "tab:orange", "explicit": "tab:red", "cnn": "tab:green",
            "cnn_chainmail": "tab:purple"}
@@ -454,8 +455,9 @@ def cnn_cube_section(case: dict) -> str:
 
 SECTIONS = {"cnn_cube": cnn_cube_section, "indentation": indentation_section,
             "liver_variational": variational_section, "mitsuba": mitsuba_section,
-            discretisation.CASE: discretisation.section_html}
+            discretisation.CASE: discretisation.section_html, zhang_mesh.CASE: zhang_mesh.section_html}
 SECTIONS[viscoelastic.CASE] = viscoelastic.section_html
+
 
 def render_html(report: dict) -> str:
     cases = report["cases"]
