@@ -24,6 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from sim.wrench import add_wrench
+
 
 @dataclass
 class Grasp:
@@ -186,9 +188,4 @@ def project_onto_plane(x, w, point, normal, acts, dn, load):
         m = depth / w[i]
         jx, jy, jz = m * normal[0], m * normal[1], m * normal[2]
         rx, ry, rz = x[i, 0] - point[0], x[i, 1] - point[1], x[i, 2] - point[2]
-        load[0] += jx
-        load[1] += jy
-        load[2] += jz
-        load[3] += ry * jz - rz * jy
-        load[4] += rz * jx - rx * jz
-        load[5] += rx * jy - ry * jx
+        add_wrench(load, 1.0, jx, jy, jz, rx, ry, rz)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.contact_mesh import build_grid, closest_on_triangle
+from sim.contact_mesh import build_grid, closest_on_triangle, corner_angle, unit_face_normal
 
 
 @njit(cache=True)
@@ -21,28 +21,11 @@ def _face_normal_and_box(x, static_x, n_nodes, tri_v, t, reach, face_n, lo, hi):
     """Unit normal and box grown by ``reach`` of triangle t (``sim.contact_mesh.pseudonormals`` and
     ``triangle_boxes``, the same arithmetic)."""
     a, b, c = tri_v[t, 0], tri_v[t, 1], tri_v[t, 2]
-    e1x, e1y, e1z = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
-    e2x, e2y, e2z = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
-    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-    length = np.sqrt(nx * nx + ny * ny + nz * nz)
-    scale = 1.0 / length if length > 0.0 else 0.0
-    face_n[t, 0], face_n[t, 1], face_n[t, 2] = nx * scale, ny * scale, nz * scale
+    face_n[t, 0], face_n[t, 1], face_n[t, 2] = unit_face_normal(x, a, b, c)
     for d in range(3):
         pa, pb, pc = x[a, d], x[b, d], x[c, d]
         lo[t, d] = min(pa, pb, pc) - reach
         hi[t, d] = max(pa, pb, pc) + reach
-
-
-@njit(cache=True)
-def _corner_angle(x, tri_v, f, k):
-    """The angle of triangle f at its corner k (``sim.contact_mesh.pseudonormals``'s weight); -1 when degenerate."""
-    v0, v1, v2 = tri_v[f, k], tri_v[f, (k + 1) % 3], tri_v[f, (k + 2) % 3]
-    ux, uy, uz = x[v1, 0] - x[v0, 0], x[v1, 1] - x[v0, 1], x[v1, 2] - x[v0, 2]
-    wx, wy, wz = x[v2, 0] - x[v0, 0], x[v2, 1] - x[v0, 1], x[v2, 2] - x[v0, 2]
-    lu, lw = np.sqrt(ux * ux + uy * uy + uz * uz), np.sqrt(wx * wx + wy * wy + wz * wz)
-    if lu > 0.0 and lw > 0.0:
-        return np.arccos(min(1.0, max(-1.0, (ux * wx + uy * wy + uz * wz) / (lu * lw))))
-    return -1.0
 
 
 @njit(cache=True)
@@ -178,7 +161,7 @@ def feature_normals(x, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edg
             corner = 0
             while tri_lv[f, corner] != v:
                 corner += 1
-            angle = _corner_angle(x, tri_v, f, corner)
+            angle = corner_angle(x, tri_v[f, corner], tri_v[f, (corner + 1) % 3], tri_v[f, (corner + 2) % 3])
             if angle >= 0.0:
                 nx += angle * face_n[f, 0]
                 ny += angle * face_n[f, 1]

@@ -23,6 +23,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sim.wrench import add_wrench
+
+
 GRID_CELLS = 32  # at most this many grid cells along the grid's longest side
 
 
@@ -68,25 +71,38 @@ def closest_on_triangle(p, a, b, c):
 
 
 @njit(cache=True)
+def unit_face_normal(xv, a, b, c):
+    """The unit normal (right-handed in a, b, c) of the triangle of rows a, b, c of ``xv``; zero when degenerate."""
+    e1x, e1y, e1z = xv[b, 0] - xv[a, 0], xv[b, 1] - xv[a, 1], xv[b, 2] - xv[a, 2]
+    e2x, e2y, e2z = xv[c, 0] - xv[a, 0], xv[c, 1] - xv[a, 1], xv[c, 2] - xv[a, 2]
+    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    length = np.sqrt(nx * nx + ny * ny + nz * nz)
+    scale = 1.0 / length if length > 0.0 else 0.0
+    return nx * scale, ny * scale, nz * scale
+
+
+@njit(cache=True)
+def corner_angle(xv, v0, v1, v2):
+    """The angle at row v0 of the triangle (v0, v1, v2) of ``xv`` (the vertex normals' weight); -1 when degenerate."""
+    ux, uy, uz = xv[v1, 0] - xv[v0, 0], xv[v1, 1] - xv[v0, 1], xv[v1, 2] - xv[v0, 2]
+    wx, wy, wz = xv[v2, 0] - xv[v0, 0], xv[v2, 1] - xv[v0, 1], xv[v2, 2] - xv[v0, 2]
+    lu, lw = np.sqrt(_dot(ux, uy, uz, ux, uy, uz)), np.sqrt(_dot(wx, wy, wz, wx, wy, wz))
+    if lu > 0.0 and lw > 0.0:
+        return np.arccos(min(1.0, max(-1.0, _dot(ux, uy, uz, wx, wy, wz) / (lu * lw))))
+    return -1.0
+
+
+@njit(cache=True)
 def pseudonormals(xv, vmap, faces, adjacent, face_n, edge_n, vert_n):
     """Unit face normals, edge normals (the two faces' sum; a border edge: its face's) and angle-weighted vertex
     normals (Bærentzen & Aanæs 2005) of the surface with vertex k at ``xv[vmap[k]]``, written in place."""
     vert_n[:] = 0.0
     for f in range(faces.shape[0]):
         a, b, c = vmap[faces[f, 0]], vmap[faces[f, 1]], vmap[faces[f, 2]]
-        e1x, e1y, e1z = xv[b, 0] - xv[a, 0], xv[b, 1] - xv[a, 1], xv[b, 2] - xv[a, 2]
-        e2x, e2y, e2z = xv[c, 0] - xv[a, 0], xv[c, 1] - xv[a, 1], xv[c, 2] - xv[a, 2]
-        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        length = np.sqrt(nx * nx + ny * ny + nz * nz)
-        scale = 1.0 / length if length > 0.0 else 0.0
-        face_n[f, 0], face_n[f, 1], face_n[f, 2] = nx * scale, ny * scale, nz * scale
+        face_n[f, 0], face_n[f, 1], face_n[f, 2] = unit_face_normal(xv, a, b, c)
         for k in range(3):
-            v0, v1, v2 = vmap[faces[f, k]], vmap[faces[f, (k + 1) % 3]], vmap[faces[f, (k + 2) % 3]]
-            ux, uy, uz = xv[v1, 0] - xv[v0, 0], xv[v1, 1] - xv[v0, 1], xv[v1, 2] - xv[v0, 2]
-            wx, wy, wz = xv[v2, 0] - xv[v0, 0], xv[v2, 1] - xv[v0, 1], xv[v2, 2] - xv[v0, 2]
-            lu, lw = np.sqrt(_dot(ux, uy, uz, ux, uy, uz)), np.sqrt(_dot(wx, wy, wz, wx, wy, wz))
-            if lu > 0.0 and lw > 0.0:
-                angle = np.arccos(min(1.0, max(-1.0, _dot(ux, uy, uz, wx, wy, wz) / (lu * lw))))
+            angle = corner_angle(xv, vmap[faces[f, k]], vmap[faces[f, (k + 1) % 3]], vmap[faces[f, (k + 2) % 3]])
+            if angle >= 0.0:
                 for d in range(3):
                     vert_n[faces[f, k], d] += angle * face_n[f, d]
     for f in range(faces.shape[0]):
@@ -248,12 +264,7 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
         contact_bary[q, 0], contact_bary[q, 1], contact_bary[q, 2] = b0, b1, b2
         contact_n[q, 0], contact_n[q, 1], contact_n[q, 2] = nx, ny, nz
         rx, ry, rz = x[i, 0] - centre[0], x[i, 1] - centre[1], x[i, 2] - centre[2]
-        load[0] += sign * jx
-        load[1] += sign * jy
-        load[2] += sign * jz
-        load[3] += sign * (ry * jz - rz * jy)
-        load[4] += sign * (rz * jx - rx * jz)
-        load[5] += sign * (rx * jy - ry * jx)
+        add_wrench(load, sign, jx, jy, jz, rx, ry, rz)
         moved += 1
     return moved
 

@@ -28,6 +28,7 @@ import numpy as np
 from numba import njit
 
 from sim.contact_broad import broad_phase, cell_clearance, feature_normals, nearest_triangle, vertex_coordinate
+from sim.wrench import add_wrench
 
 
 @njit(cache=True)
@@ -146,12 +147,7 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         contact_n[e, 0], contact_n[e, 1], contact_n[e, 2] = nx, ny, nz
         sign, load = c_sign[c], loads[c_pair[c]]
         rx, ry, rz = x[i, 0], x[i, 1], x[i, 2]
-        load[0] += sign * jx
-        load[1] += sign * jy
-        load[2] += sign * jz
-        load[3] += sign * (ry * jz - rz * jy)
-        load[4] += sign * (rz * jx - rx * jz)
-        load[5] += sign * (rx * jy - ry * jx)
+        add_wrench(load, sign, jx, jy, jz, rx, ry, rz)
         moved += 1
     return moved
 

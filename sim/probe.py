@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from sim.wrench import add_wrench
+
 
 @dataclass
 class Probe:
@@ -99,12 +101,7 @@ def _push_node(x, inv_mass, i, a, b, radius, centre, load):
     p0, p1, p2 = c0 + d0 * scale, c1 + d1 * scale, c2 + d2 * scale
     j0, j1, j2 = m * (p0 - x[i, 0]), m * (p1 - x[i, 1]), m * (p2 - x[i, 2])
     r0, r1, r2 = p0 - centre[0], p1 - centre[1], p2 - centre[2]
-    load[0] += j0
-    load[1] += j1
-    load[2] += j2
-    load[3] += r1 * j2 - r2 * j1
-    load[4] += r2 * j0 - r0 * j2
-    load[5] += r0 * j1 - r1 * j0
+    add_wrench(load, 1.0, j0, j1, j2, r0, r1, r2)
     x[i, 0] = p0
     x[i, 1] = p1
     x[i, 2] = p2

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import math
 import time
 
@@ -35,6 +34,7 @@ from sim.cases import viscoelastic as cube_case
 from sim.errors import SimulationDiverged
 from sim.integrators import make_integrator
 from sim.model import State
+from tissuerender.report.discretisation import num, png_bytes, table
 from tissuerender.report.measure import pareto_front
 
 CASE = "viscoelastic_cube"
@@ -194,14 +194,6 @@ def run_viscoelastic(sweep: dict, tick=lambda: None) -> dict:
 
 # --- the HTML section -------------------------------------------------------------------------------------------
 
-def _num(value) -> str:
-    if value is None:
-        return "–"
-    if isinstance(value, float):
-        return f"{value:.4g}" if math.isfinite(value) else str(value)
-    return html.escape(str(value))
-
-
 def figure_png(case: dict) -> bytes:
     """Left: F(t) of the reference, Prony's prediction scaled by F_el, and each integrator's most accurate setting.
     Right: error against wall time per simulated second, the Pareto front joined."""
@@ -245,23 +237,13 @@ def figure_png(case: dict) -> bytes:
     right.grid(True, which="both", alpha=0.3)
     right.legend(fontsize=8)
     fig.suptitle(case["title"] + (" (cached)" if case.get("cached") else ""), fontsize=10)
-    fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", metadata={"Software": None})
-    plt.close(fig)
-    return buffer.getvalue()
-
-
-def _table(headers, rows) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
-    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in row) + "</tr>" for row in rows)
-    return f'<table class="viscoelastic"><tr>{head}</tr>{body}</table>'
+    return png_bytes(fig)
 
 
 def _check_row(label: str, c: dict) -> list:
-    return [label, _num(c["strain"]), _num(c["dt_s"]), _num(c["peak_ratio"]), _num(c["predicted_peak_ratio"]),
-            _num(c["ratio"]), _num(c["predicted_ratio"]), _num(c["tau_s"]), _num(c["tau_discrete_s"]),
-            _num(c["max_deviation_from_recursion"]), _num(c["tolerance"]),
+    return [label, num(c["strain"]), num(c["dt_s"]), num(c["peak_ratio"]), num(c["predicted_peak_ratio"]),
+            num(c["ratio"]), num(c["predicted_ratio"]), num(c["tau_s"]), num(c["tau_discrete_s"]),
+            num(c["max_deviation_from_recursion"]), num(c["tolerance"]),
             "yes" if c["ratio_within"] and c["tau_within"] else "no"]
 
 
@@ -269,9 +251,9 @@ def section_html(case: dict) -> str:
     setup, ref = case["setup"], case["reference"]
     png = base64.b64encode(figure_png(case)).decode("ascii")
     front = set(case["pareto"])
-    rows = [[p["integrator"], html.escape(p["setting"]), _num(p.get("rel_l2")), _num(p.get("late_rel_l2")),
-             _num(p.get("peak_N")),
-             _num(p.get("hold_mean_N")), _num(p["wall_s"]), _num(p["wall_s_per_sim_s"]),
+    rows = [[p["integrator"], html.escape(p["setting"]), num(p.get("rel_l2")), num(p.get("late_rel_l2")),
+             num(p.get("peak_N")),
+             num(p.get("hold_mean_N")), num(p["wall_s"]), num(p["wall_s_per_sim_s"]),
              "&#9679;" if i in front else "", html.escape(p["diverged"] or "")] for i, p in enumerate(case["points"])]
     cached = " <em>(cached)</em>" if case.get("cached") else ""
     return "\n".join([
@@ -283,17 +265,16 @@ def section_html(case: dict) -> str:
         f"{setup['alpha']:g}, tau {setup['tau_s']:g} s): the face x = 0 held, the face x = 2 m moved "
         f"{setup['displacement_m']:g} m in x over {setup['ramp_s']:g} s, held to {setup['end_s']:g} s. F(t): the x "
         f"reaction at the held face, positive in compression. Reference: {html.escape(ref['kind'])} "
-        f"({_num(ref['wall_s'])} s); at twice its step its history differs by {_num(ref['step_difference'])} "
+        f"({num(ref['wall_s'])} s); at twice its step its history differs by {num(ref['step_difference'])} "
         "(relative L2). XPBD is dynamic: the cube's inertia rings under the 0.5 s ramp, which the quasi-static test "
         "leaves out (tissuerender/report/viscoelastic.py).</p>",
         "<p>Prony's prediction (sim/cases/viscoelastic.py): F relaxes from F(T_r) towards (1 - alpha) F_el with "
         "time constant tau; the history update below Zhang 5.32 makes that dt / ln(1 + dt / tau). Bounds: the "
         "strain (linear viscoelasticity to first order).</p>",
-        _table(["run", "strain", "dt [s]", "F(T_r)/F_el", "predicted", "F(end)/F_el", "predicted", "tau fit [s]",
-                "dt/ln(1+dt/tau) [s]", "max |F/F_el - recursion|", "bound", "within"],
-               [_check_row("the thesis's 0.3 m", case["prony_thesis_strain"]),
-                _check_row("small strain", case["prony_small_strain"])]),
-        _table(["integrator", "setting", "relative L2 of F(t)", "the same over the last 2 s", "peak [N]",
-                "mean over the last 2 s [N]", "wall [s]",
-                "wall / sim s", "Pareto", "failure"], rows),
+        table(["run", "strain", "dt [s]", "F(T_r)/F_el", "predicted", "F(end)/F_el", "predicted", "tau fit [s]",
+               "dt/ln(1+dt/tau) [s]", "max |F/F_el - recursion|", "bound", "within"],
+              [_check_row("the thesis's 0.3 m", case["prony_thesis_strain"]),
+               _check_row("small strain", case["prony_small_strain"])], "viscoelastic"),
+        table(["integrator", "setting", "relative L2 of F(t)", "the same over the last 2 s", "peak [N]",
+               "mean over the last 2 s [N]", "wall [s]", "wall / sim s", "Pareto", "failure"], rows, "viscoelastic"),
     ])
