@@ -131,6 +131,20 @@ def test_removed_tets_left_inert_in_the_blocks_give_the_positions_of_blocks_pack
     np.testing.assert_array_equal(runs[np.inf][0], runs[0.0][0])
 
 
+def test_a_cutting_model_steps_in_one_call_per_substep_as_in_the_per_sweep_loop(monkeypatch):
+    # sim.integrators.xpbd.sweeps runs a cutting model's sweeps in one compiled call (the blade's shaft pushing, the
+    # grasp holding); the per-sweep Python loop is the reference: the same operations in the same order, so the
+    # positions and the tools' loads must agree to the bit through the cut, the grasp and 0.2 s under gravity.
+    from sim.integrators.xpbd import sweeps
+    _, _, model, fused, state = _cut_bar(gravity=(0.0, 0.0, -9.81), steps=20, grasp=True)
+    assert fused.fused is not None and model.n_tets == 240 - 48
+    monkeypatch.setattr(sweeps.FusedSweeps, "covers", staticmethod(lambda xpbd, probes: False))
+    _, _, _, loop, reference = _cut_bar(gravity=(0.0, 0.0, -9.81), steps=20, grasp=True)
+    assert loop.fused is None
+    np.testing.assert_array_equal(state.x, reference.x)
+    np.testing.assert_array_equal(state.v, reference.v)
+
+
 def test_grasped_nodes_the_cut_leaves_in_no_tet_let_go():
     mesh, _, model, integrator, state = _cut_bar(grasp=True)
     # grasped at t = 0: the bar's centre node (0.1, 0.02, 0.02), its 4 neighbours in the plane x = 0.1 and the 2 at

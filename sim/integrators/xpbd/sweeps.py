@@ -3,9 +3,10 @@ contacts are projected after every sweep (issue 21, "Performance"): per sweep, t
 (``sim.integrators.xpbd.blocked``), the tools' capsules pushing nodes out (``sim.probe``), the grasps' attachments
 (``sim.contact.GraspState``), the static planes (``sim.contact.project_onto_plane``) and the surface contacts
 (``sim.contact_set``), in the order and with the arithmetic of the per-sweep Python loop in
-``sim.integrators.xpbd.solver`` (the same positions and loads bit for bit, tests/sim/test_fused_sweeps.py); that loop
-stays for what this does not cover (strain limits, nodes held in some components, several constraint sets, other
-kernels, cuts, mesh tools).
+``sim.integrators.xpbd.solver`` (the same positions and loads bit for bit: tests/sim/test_contact_set.py, and with a
+cut, tests/sim/test_cut.py); that loop stays for what this does not cover (strain limits, nodes held in some
+components, several constraint sets, other kernels, mesh tools). A cut's blade pushes as its shaft
+(``sim.cutting.Shaft``); a removal leaves inert lanes in, or repacks, the blocks read at every call.
 
 A tool's capsules test only the free nodes within its largest radius of them at the substep's start (a node must move
 that far within one substep's sweeps to get inside); if any node has moved that far since, that sweep tests them all.
@@ -127,7 +128,7 @@ class FusedSweeps:
     @staticmethod
     def covers(xpbd, probes) -> bool:
         return (len(xpbd.sets) == 1 and xpbd.sets[0].blocks is not None and xpbd.strain_limits is None
-                and xpbd.green_limits is None and xpbd.partial.empty and xpbd.cutter is None
+                and xpbd.green_limits is None and xpbd.partial.empty
                 and all(type(p).push_out is Probe.push_out for p in probes))  # capsules: not a mesh tool
 
     def __init__(self, xpbd):
