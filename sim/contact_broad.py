@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.contact_mesh import build_grid, closest_on_triangle, corner_angle, unit_face_normal
+from sim.contact_mesh import build_grid, closest_with_distance2, corner_angle, unit_face_normal
 
 
 @njit(cache=True)
@@ -56,11 +56,7 @@ def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, firs
         height = nx * (g[0] - a[0]) + ny * (g[1] - a[1]) + nz * (g[2] - a[2])
         if height * height > best * (1.0 + 1e-9) * (nx * nx + ny * ny + nz * nz):
             continue
-        e0, e1, e2, feature = closest_on_triangle(g, a, b, c)
-        d2 = 0.0
-        for d in range(3):
-            r = g[d] - (e0 * a[d] + e1 * b[d] + e2 * c[d])
-            d2 += r * r
+        d2, e0, e1, e2, feature = closest_with_distance2(g, a, b, c)
         if d2 <= best:
             best, best_t, best_f, b0, b1, b2 = d2, t, feature, e0, e1, e2
     return best_t, best_f, b0, b1, b2
@@ -131,12 +127,7 @@ def _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0, origin,
                         a[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 0], d)
                         b[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 1], d)
                         c[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 2], d)
-                    e0, e1, e2, _ = closest_on_triangle(g, a, b, c)
-                    d2 = 0.0
-                    for d in range(3):
-                        r = g[d] - (e0 * a[d] + e1 * b[d] + e2 * c[d])
-                        d2 += r * r
-                    best = min(best, d2)
+                    best = min(best, closest_with_distance2(g, a, b, c)[0])
     return np.sqrt(best) * (1.0 - 1e-9)
 
 

@@ -71,6 +71,17 @@ def closest_on_triangle(p, a, b, c):
 
 
 @njit(cache=True)
+def closest_with_distance2(p, a, b, c):
+    """:func:`closest_on_triangle`'s barycentrics and feature, with the squared distance from p to that point."""
+    b0, b1, b2, feature = closest_on_triangle(p, a, b, c)
+    d2 = 0.0
+    for d in range(3):
+        r = p[d] - (b0 * a[d] + b1 * b[d] + b2 * c[d])
+        d2 += r * r
+    return d2, b0, b1, b2, feature
+
+
+@njit(cache=True)
 def unit_face_normal(xv, a, b, c):
     """The unit normal (right-handed in a, b, c) of the triangle of rows a, b, c of ``xv``; zero when degenerate."""
     e1x, e1y, e1z = xv[b, 0] - xv[a, 0], xv[b, 1] - xv[a, 1], xv[b, 2] - xv[a, 2]
@@ -219,11 +230,7 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
                 a[d] = xv[vmap[faces[t, 0]], d]
                 b[d] = xv[vmap[faces[t, 1]], d]
                 c[d] = xv[vmap[faces[t, 2]], d]
-            c0, c1, c2, feature = closest_on_triangle(g, a, b, c)
-            d2 = 0.0
-            for d in range(3):
-                r = g[d] - (c0 * a[d] + c1 * b[d] + c2 * c[d])
-                d2 += r * r
+            d2, c0, c1, c2, feature = closest_with_distance2(g, a, b, c)
             if d2 <= best:
                 best, best_t, best_f, b0, b1, b2 = d2, t, feature, c0, c1, c2
         if best_t < 0:
