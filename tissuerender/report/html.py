@@ -125,8 +125,11 @@ def _case_section(case: dict) -> str:
                  + (f"; mesh {case['mesh']['nodes']} nodes, {case['mesh']['tets']} tets; reference wall time "
                     f"{_num(ref['wall_s'])} s" if "mesh" in case else "") + ".</p>")
     conv = case["convergence"]
-    parts.append(f"<p>Reference convergence: {html.escape(conv['what'])} at steps {conv['dts']}: "
-                 f"observed order {', '.join(_num(o) for o in conv['orders'])} (expected {conv['expected_order']}).</p>")
+    if "orders" in conv:
+        parts.append(f"<p>Reference convergence: {html.escape(conv['what'])} at steps {conv['dts']}: observed order "
+                     f"{', '.join(_num(o) for o in conv['orders'])} (expected {conv['expected_order']}).</p>")
+    else:
+        parts.append(f"<p>Reference check: {html.escape(conv['what'])}: {_num(conv['relative_difference'])}.</p>")
     front = set(case["pareto"])
     mesh = "line_max_m" in {k for p in case["points"] for k in p}
     headers = ["integrator", "setting", "error", *(["line max [m]", "line mean [m]", "line RMSE [m]", "RED"] if mesh else []),
@@ -137,6 +140,8 @@ def _case_section(case: dict) -> str:
         rows.append([p["integrator"], html.escape(p["setting"]), _num(p.get(case["error_key"])), *extra,
                      _num(p["wall_s"]), _num(p["wall_s_per_sim_s"]), "&#9679;" if i in front else "",
                      html.escape(p["diverged"] or "")])
+    for name, why in case.get("not_applicable", {}).items():
+        parts.append(f"<p>{html.escape(name)}: not applicable here ({html.escape(why)}).</p>")
     parts.append(f"<p>Error: {html.escape(case['error_label'])}.</p>")
     parts.append(_table(headers, rows))
     return "\n".join(parts)
