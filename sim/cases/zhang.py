@@ -8,6 +8,10 @@ accuracy tests and the accuracy benchmark.
   0.4 m this buckles at about 0.31 m (a hard case).
 - **Cube shear**: 2 m cube, the thesis's y axis vertical: bottom (y = 0) fixed, top (y = 2) moved
   +0.5 m in z. Measured: u_z on the line x = 2 m, y = 1 m (mid-height of the right face, along z).
+- **Cube stretch** (issue 17 asks for the cube "under shear and stretch"; Zhang §5.3.2 shears it only): the same
+  cube, bottom fixed, top moved +0.5 m in y (a 25 % stretch with clamped ends). Measured: u_x, the sideways
+  contraction, on the line x = 2 m, z = 1 m (the right face's vertical mid-line, along y): zero at the clamped
+  ends, largest near mid-height, where the near-incompressible cube (nu = 0.49) narrows most.
 
 Material: E = 3000 Pa, nu = 0.49, rho = 1000 kg/m^3, the Neo-Hookean form of Zhang eq. 5.35 unless
 another constitutive model is asked for.
@@ -90,10 +94,30 @@ def zhang_cube_shear(n_cells: int = 8, displacement: float = 0.5, constitutive: 
     return Case("cube_shear", model, line, coord, ramp_time, component=2)
 
 
+def zhang_cube_stretch(n_cells: int = 8, displacement: float = 0.5, constitutive: str = "neo_hookean",
+                       E: float = 3000.0, nu: float = 0.49, density: float = 1000.0,
+                       ramp_time: float = 1.0, level: int = 0, quadratic: bool = False) -> Case:
+    """The cube stretched along y by ``displacement`` [m] (module docstring); ``n_cells`` even, so the line exists."""
+    if n_cells % 2:
+        raise ValueError(f"zhang_cube_stretch: n_cells must be even (the line runs at z = 1 m); got {n_cells}")
+    mesh = procedural.cube(2.0, n_cells)
+    model = _level_model(mesh, level, quadratic, E=E, nu=nu, density=density, constitutive=constitutive)
+    points = model.X
+    model.fixed[select.nodes_on_side(points, 1, "min")] = True
+    top = select.nodes_on_side(points, 1, "max")
+    model.prescribed.append(PrescribedDisplacement(top, np.array([0.0, displacement, 0.0]), 0.0, ramp_time))
+    tol = 0.25 * 2.0 / n_cells / 2 ** (level + quadratic)
+    line, coord = _line_nodes(points, {0: 2.0, 2: 1.0}, 1, tol)
+    return Case("cube_stretch", model, line, coord, ramp_time, component=0)
+
+
 def zhang_case(name: str, cylinder_h: float, cube_cells: int, level: int = 0, quadratic: bool = False) -> Case:
-    """The report's case ``name`` (cylinder_extension, cylinder_compression: +-0.4 m; cube_shear) at mesh ``level``."""
+    """The report's case ``name`` (cylinder_extension, cylinder_compression: +-0.4 m; cube_shear, cube_stretch) at
+    mesh ``level``."""
     if name == "cube_shear":
         return zhang_cube_shear(n_cells=cube_cells, level=level, quadratic=quadratic)
+    if name == "cube_stretch":
+        return zhang_cube_stretch(n_cells=cube_cells, level=level, quadratic=quadratic)
     displacement = {"cylinder_extension": 0.4, "cylinder_compression": -0.4}[name]
     return zhang_cylinder(h=cylinder_h, displacement=displacement, level=level, quadratic=quadratic)
 

@@ -5,7 +5,8 @@ convergence check of that reference, and the named ``measures`` the claims (``cl
 - ``msd``: the mass–spring–damper of Zhang §4.3.2.1 (``sim.cases.msd``) against its closed-form
   solution: ``explicit`` and ``cnn`` (K = 5, 4, 2, state saturation) over the time step. Only these two
   apply (XPBD, EBM and ChainMail need a tetrahedral mesh).
-- ``cylinder_extension``, ``cylinder_compression``, ``cube_shear``: Zhang §5.3.2 (``sim.cases.zhang``),
+- ``cylinder_extension``, ``cylinder_compression``, ``cube_shear``: Zhang §5.3.2 (``sim.cases.zhang``), and
+  ``cube_stretch`` (the same cube pulled 0.5 m along y, full report only),
   Neo-Hookean 5.35, against the quasi-static Newton reference (``sim.integrators.reference``, relative
   gradient 1e-8) on the same mesh: ``xpbd`` (``material = "model"``: the same Neo-Hookean energy) over
   substeps x iterations, ``ebm`` over iterations (8 load steps over the 1 s ramp), ``explicit`` and ``cnn``
@@ -22,7 +23,7 @@ import numpy as np
 
 from sim.cases.msd import MassSpringDamper, simulate
 from sim.cases.rates import cnn_cube, ebm_block, step_rate
-from sim.cases.zhang import zhang_cube_shear, zhang_cylinder
+from sim.cases.zhang import zhang_cube_shear, zhang_cube_stretch, zhang_cylinder
 from sim.integrators.reference import ReferenceIntegrator
 from sim.model import State
 from tissuerender.report import cnn_cube as zhang_cnn_cube  # not sim.cases.rates.cnn_cube, the rate's block
@@ -33,7 +34,8 @@ from tissuerender.report.pictures import error_fields
 
 # the displacement component the thesis plots along the measurement line: u_x on the cylinder (Zhang
 # Figs. 5.5(c), 5.6(c)), u_z on the cube (Fig. 5.7(c))
-LINE_COMPONENT = {"cylinder_extension": 0, "cylinder_compression": 0, "cube_shear": 2}
+LINE_COMPONENT = {"cylinder_extension": 0, "cylinder_compression": 0, "cube_shear": 2,
+                  "cube_stretch": 0}  # the stretched cube's sideways contraction (sim.cases.zhang)
 MESH_CASES = tuple(LINE_COMPONENT)
 # cases of their own modules, each with SWEEPS per level, a run function and work_units
 EXTRA = {"liver_variational": (variational.SWEEPS, variational.run_variational, variational.work_units),
@@ -171,11 +173,13 @@ def _zhang_case(case: str, sweep: dict):
         return zhang_cylinder(h=sweep["cylinder_h"], displacement=0.4)
     if case == "cylinder_compression":
         return zhang_cylinder(h=sweep["cylinder_h"], displacement=-0.4)
+    if case == "cube_stretch":
+        return zhang_cube_stretch(n_cells=sweep["cube_cells"])
     return zhang_cube_shear(n_cells=sweep["cube_cells"])
 
 
 # the axis along which each case's kinematic faces lie at 0 and 2 m
-END_AXIS = {"cylinder_extension": 2, "cylinder_compression": 2, "cube_shear": 1}
+END_AXIS = {"cylinder_extension": 2, "cylinder_compression": 2, "cube_shear": 1, "cube_stretch": 1}
 
 
 def _reference_convergence(case, case_name: str, x_ref, sweep: dict) -> dict:
