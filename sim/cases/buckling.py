@@ -30,6 +30,7 @@ class BucklingPath:
     compression: np.ndarray  # (s,) [m] at the end of each load step
     deflection: np.ndarray  # (s,) [m] sideways displacement of the loaded face's centroid
     smallest_eigenvalue: np.ndarray  # (s,) [N/m] of the reduced tangent stiffness (NaN where not computed)
+    x: np.ndarray | None = None  # (n, 3) [m] the positions at the end of the path
 
     def critical_compression(self) -> float:
         """Compression [m] where the smallest eigenvalue crosses zero (linear between load steps); NaN if it does
@@ -80,4 +81,4 @@ def buckling_path(case: Case, load_steps: int = 10, eigen_every: int = 1, anp: b
         deflection.append(float(np.hypot(u[:, 0].mean(), u[:, 1].mean())))
         last = k == load_steps - 1
         eigen.append(smallest_eigenvalue(reference, state.x) if (k + 1) % eigen_every == 0 or last else np.nan)
-    return BucklingPath(np.array(compression), np.array(deflection), np.array(eigen))
+    return BucklingPath(np.array(compression), np.array(deflection), np.array(eigen), state.x)

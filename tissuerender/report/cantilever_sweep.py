@@ -36,10 +36,9 @@ import numpy as np
 
 from sim.cases.cantilever import LENGTH, SIDE, cantilever_model
 from sim.cases.zhang import Case, relative_l2
-from sim.integrators import make_integrator
 from sim.integrators.reference import ReferenceIntegrator
 from sim.mesh import select
-from tissuerender.report.measure import mesh_point, pareto_front
+from tissuerender.report.measure import mesh_point, pareto_front, refusal
 from tissuerender.report.pictures import error_fields
 
 CASE = "cantilever_integrators"
@@ -105,15 +104,6 @@ def reference_convergence(model, x_ref: np.ndarray, sweep: dict) -> dict:
             "tip_difference_m": abs(tip_deflection(model, x_ref - model.X) - tip_deflection(model, x_tight - model.X))}
 
 
-def _not_applicable(name: str, model) -> str | None:
-    """The integrator's own refusal of this model (its constructor's message), or None when it takes it."""
-    try:
-        make_integrator(name, model, {})
-    except ValueError as e:
-        return str(e).splitlines()[0]
-    return None
-
-
 def run_cantilever_integrators(sweep: dict, tick=lambda: None) -> dict:
     case = cantilever_case(sweep["level"])
     model = case.model
@@ -140,7 +130,7 @@ def run_cantilever_integrators(sweep: dict, tick=lambda: None) -> dict:
     fields = error_fields(model, points, u_ref)
     convergence = reference_convergence(model, x_ref, sweep)
     tick()
-    refused = {"cnn_chainmail": _not_applicable("cnn_chainmail", model)}
+    refused = {"cnn_chainmail": refusal("cnn_chainmail", model)}
     tick()
     measures = {"reference_tip_m": tip_ref}
     for name in ("xpbd", "explicit", "cnn", "ebm"):

@@ -27,7 +27,7 @@ from sim.cases.zhang import zhang_cube_shear, zhang_cube_stretch, zhang_cylinder
 from sim.integrators.reference import ReferenceIntegrator
 from sim.model import State
 from tissuerender.report import cnn_cube as zhang_cnn_cube  # not sim.cases.rates.cnn_cube, the rate's block
-from tissuerender.report import cantilever_sweep, discretisation, indentation, mitsuba, variational
+from tissuerender.report import buckling_sweep, cantilever_sweep, discretisation, indentation, mitsuba, variational
 from tissuerender.report import viscoelastic, zhang_mesh
 from tissuerender.report.measure import mesh_point, observed_order, pareto_front
 from tissuerender.report.pictures import error_fields
@@ -45,7 +45,8 @@ EXTRA = {"liver_variational": (variational.SWEEPS, variational.run_variational, 
          discretisation.CASE: (discretisation.SWEEPS, discretisation.run_discretisation, discretisation.work_units),
          zhang_mesh.CASE: (zhang_mesh.SWEEPS, zhang_mesh.run_zhang_mesh, zhang_mesh.work_units),
          viscoelastic.CASE: (viscoelastic.SWEEPS, viscoelastic.run_viscoelastic, viscoelastic.work_units),
-         cantilever_sweep.CASE: (cantilever_sweep.SWEEPS, cantilever_sweep.run_cantilever_integrators, cantilever_sweep.work_units)}
+         cantilever_sweep.CASE: (cantilever_sweep.SWEEPS, cantilever_sweep.run_cantilever_integrators, cantilever_sweep.work_units),
+         buckling_sweep.CASE: (buckling_sweep.SWEEPS, buckling_sweep.run_buckling_sweep, buckling_sweep.work_units)}
 CASES = ("msd", *MESH_CASES, "rates", *EXTRA)
 SCENE_CASES = ("liver_variational", "mitsuba")  # they build a shipped scene (and render): keyed on all the code
 

@@ -486,6 +486,9 @@ def render_html(report: dict) -> str:
     if report.get("scene"):
         body = scene_section(report["scene"]) + "\n" + body
     not_covered = "".join(f"<li>{html.escape(item)}</li>" for item in report["not_covered"])
+    if not_covered:
+        not_covered = f'<h2 id="not-covered">Not covered by this report yet</h2><ul>{not_covered}</ul>'
+
     style = ("body{font-family:sans-serif;max-width:70em;margin:1em auto;padding:0 1em}"
              "table{border-collapse:collapse;margin:.5em 0;font-size:90%}td,th{border:1px solid #bbb;padding:2px 6px}"
              ".reproduced{color:#060}.not-reproduced{color:#a00}.not-comparable{color:#666}img{max-width:100%}")
@@ -503,6 +506,6 @@ takes per simulated second (log-log, lower-left is better); circled points joine
 Pareto front (no other setting is both faster and more accurate). See docs/report.md.</p>
 {claims}
 {body}
-<h2 id="not-covered">Not covered by this report yet</h2><ul>{not_covered}</ul>
+{not_covered}
 </body></html>
 """

@@ -65,6 +65,16 @@ def mesh_point(integrator: str, label: str, settings: dict, case, u_ref, compone
     return point
 
 
+def refusal(name: str, model) -> str | None:
+    """The first line of the error ``name``'s constructor raises for ``model`` (an integrator that does not take such a
+    model, e.g. the geometric ChainMail under forces), or None when it takes it: a case lists it as not applicable."""
+    try:
+        make_integrator(name, model, {})
+    except ValueError as e:
+        return str(e).splitlines()[0]
+    return None
+
+
 def pareto_front(points: list[dict], error_key: str, time_key: str = "wall_s_per_sim_s") -> list[int]:
     """Indices of the points no other point dominates (no worse in both error and time, better in one),
     sorted by time; points without a finite error are left out."""
