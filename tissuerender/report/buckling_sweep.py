@@ -17,8 +17,11 @@ Two references, both the quasi-static Newton path of ``sim.cases.buckling.buckli
 Swept as the Zhang cases (``cases.run_mesh``'s settings): ``xpbd`` substeps x iterations, ``ebm`` iterations over 8
 load steps, ``explicit`` and ``cnn`` over dt with Rayleigh damping, ``cnn_chainmail`` over alpha; the dynamic ones
 run ``settle_s`` s. Measures per setting: relative L2 of the displacement, the line errors of u_x along the
-cylinder's surface line, the loaded face's **sideways deflection** against the reference's, and failures (an
-inverted element, non-finite positions) recorded as such.
+cylinder's surface line, the loaded face's **sideways deflection** against the reference's, both again against the
+ANP path's end (``rel_l2_anp``, ``sideways_rel_error_anp``: the column itself, locking included), and **stability**:
+failures an integrator detects (an inverted element, non-finite positions) recorded as such, and at the end of a
+finished run whether its positions are finite and how many tets are inverted (signed volume <= 0; ``stable``: finite
+and none), so an integrator that does not check is checked here.
 """
 from __future__ import annotations
 
@@ -27,6 +30,8 @@ import time
 import numpy as np
 
 from sim.cases.buckling import buckling_cylinder, buckling_path
+from sim.cases.zhang import relative_l2
+from sim.mesh.procedural import signed_volumes
 from tissuerender.report.measure import mesh_point, pareto_front, refusal
 from tissuerender.report.pictures import error_fields
 
@@ -68,6 +73,8 @@ def run_buckling_sweep(sweep: dict, tick=lambda: None) -> dict:
     tick()
     u_ref = own.x - model.X
     deflection_ref = sideways(model, u_ref)
+    u_anp = anp.x - model.X
+    deflection_anp = sideways(model, u_anp)
     settle = sweep["settle_s"]
     runs = [("xpbd", f"{s}x{i}", {"substeps": s, "iterations": i, **MESH_SETTINGS}, sweep["xpbd_dt"], settle)
             for s, i in sweep["xpbd"]]
@@ -89,18 +96,25 @@ def run_buckling_sweep(sweep: dict, tick=lambda: None) -> dict:
         if "_u" in point:
             point["sideways_m"] = sideways(model, point["_u"])
             point["sideways_rel_error"] = abs(point["sideways_m"] - deflection_ref) / deflection_ref
+            point["rel_l2_anp"] = relative_l2(point["_u"], u_anp)
+            point["sideways_rel_error_anp"] = abs(point["sideways_m"] - deflection_anp) / deflection_anp
+            x = model.X + point["_u"]
+            point["finite"] = bool(np.isfinite(x).all())
+            point["inverted_tets"] = int(np.count_nonzero(signed_volumes(x, model.tets) <= 0.0))
+        point["stable"] = point["diverged"] is None and point.get("finite", False) and point.get("inverted_tets") == 0
         points.append(point)
     fields = error_fields(model, points, u_ref)
     tick()
     path = {"compression_m": own.compression.tolist(), "deflection_m": own.deflection.tolist(),
             "anp_deflection_m": anp.deflection.tolist(), "anp_smallest_eigenvalue": anp.smallest_eigenvalue.tolist()}
-    measures = {"reference_sideways_m": deflection_ref, "anp_sideways_m": float(anp.deflection[-1]),
+    measures = {"reference_sideways_m": deflection_ref, "anp_sideways_m": deflection_anp,
                 "anp_critical_compression_m": anp.critical_compression()}
     for name in ("xpbd", "ebm", "explicit", "cnn", "cnn_chainmail"):
         mine = [p for p in points if p["integrator"] == name]
         ok = [p for p in mine if p["diverged"] is None]
         measures[f"{name}_best_rel_l2"] = min((p["rel_l2"] for p in ok), default=float("nan"))
         measures[f"{name}_failed"] = len(mine) - len(ok)
+        measures[f"{name}_unstable"] = sum(1 for p in mine if not p["stable"])
     d = np.abs(u_ref[case.line, COMPONENT])
     return {"case": CASE, "title": "A hard case: the compressed cylinder with a sliding face, which buckles",
             "error_key": "rel_l2", "error_label": "relative L2 displacement error [-] against the reference on "

@@ -100,6 +100,13 @@ def _table(headers: list[str], rows: list[list], cls: str = "") -> str:
     return f'<table class="{cls}"><tr>{head}</tr>{body}</table>'
 
 
+def _unstable(point: dict) -> str:
+    """What a finished run's end state shows (``inverted_tets`` and ``finite`` where the case measures them)."""
+    if point.get("finite") is False:
+        return "non-finite positions at the end"
+    return f"{point['inverted_tets']} inverted tets at the end" if point.get("inverted_tets") else ""
+
+
 def _case_section(case: dict) -> str:
     name = case["case"]
     if name in SECTIONS:
@@ -139,7 +146,7 @@ def _case_section(case: dict) -> str:
         extra = [_num(p.get(k)) for k in ("line_max_m", "line_mean_m", "line_rmse_m", "red")] if mesh else []
         rows.append([p["integrator"], html.escape(p["setting"]), _num(p.get(case["error_key"])), *extra,
                      _num(p["wall_s"]), _num(p["wall_s_per_sim_s"]), "&#9679;" if i in front else "",
-                     html.escape(p["diverged"] or "")])
+                     html.escape(p["diverged"] or _unstable(p))])
     for name, why in case.get("not_applicable", {}).items():
         parts.append(f"<p>{html.escape(name)}: not applicable here ({html.escape(why)}).</p>")
     parts.append(f"<p>Error: {html.escape(case['error_label'])}.</p>")
