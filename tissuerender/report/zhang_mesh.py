@@ -58,8 +58,43 @@ SWEEPS = {
 }
 
 
+LEVEL_KEYS = {"quadratic": "quadratic_levels", "linear": "linear_levels", "linear_anp": "anp_levels"}
+
+
+def units(sweep: dict) -> list[dict]:
+    """The sweep's solves, each an independently schedulable and cached unit of the report (``run_unit``): one per
+    (case, element, level), JSON-ready. Listed with the most refined first (a quadratic level has the nodes of the
+    next linear one), so a scheduler taking them in order starts the longest solves first; ``combine`` does not
+    depend on the order the results arrive in."""
+    listed = [{"case": name, "element": element, "level": level, "cylinder_h": sweep["cylinder_h"],
+               "cube_cells": sweep["cube_cells"], "load_steps": sweep["load_steps"]}
+              for name in sweep["cases"] for element, key in LEVEL_KEYS.items() for level in sweep[key]]
+    return sorted(listed, key=lambda u: -(u["level"] + (u["element"] == "quadratic")))
+
+
+def unit_id(unit: dict) -> str:
+    return f"{unit['case']}-{unit['element']}-{unit['level']}"
+
+
 def work_units(sweep: dict) -> int:
-    return len(sweep["cases"]) * sum(len(sweep[f"{k}_levels"]) for k in ("linear", "anp", "quadratic"))
+    return len(units(sweep))
+
+
+def _base(name: str, sweep: dict) -> tuple[Case, int]:
+    """The level-0 case (its line nodes are every level's measurement points) and the index of the mid-line node;
+    ``sweep`` is the sweep or one of its units (both carry cylinder_h and cube_cells)."""
+    base = zhang_case(name, sweep["cylinder_h"], sweep["cube_cells"])
+    mid = int(np.argmin(np.abs(base.line_coord - 0.5 * (base.line_coord[0] + base.line_coord[-1]))))
+    return base, mid
+
+
+def run_unit(unit: dict) -> dict:
+    """One unit of ``units(sweep)`` (it carries the sweep's mesh and load settings): its level's row
+    (``solve_level``)."""
+    name, element, level = unit["case"], unit["element"], unit["level"]
+    base, _ = _base(name, unit)
+    case = zhang_case(name, unit["cylinder_h"], unit["cube_cells"], level, element == "quadratic")
+    return solve_level(case, unit["load_steps"], element == "linear_anp", base.line, level)
 
 
 def solve_level(case: Case, load_steps: int, anp: bool, line0: np.ndarray, level: int) -> dict:
@@ -106,17 +141,12 @@ def add_errors(row: dict, u_conv: np.ndarray, mid: int) -> None:
     row["mid_relative_error"] = abs(u[mid] - u_conv[mid]) / abs(u_conv[mid])
 
 
-def run_case_levels(name: str, sweep: dict, tick=lambda: None) -> dict:
-    base = zhang_case(name, sweep["cylinder_h"], sweep["cube_cells"])
-    line0 = base.line
-    mid = int(np.argmin(np.abs(base.line_coord - 0.5 * (base.line_coord[0] + base.line_coord[-1]))))
-    rows = {}
-    for element, key in (("quadratic", "quadratic_levels"), ("linear", "linear_levels"), ("linear_anp", "anp_levels")):
-        rows[element] = []
-        for level in sweep[key]:
-            case = zhang_case(name, sweep["cylinder_h"], sweep["cube_cells"], level, element == "quadratic")
-            rows[element].append(solve_level(case, sweep["load_steps"], element == "linear_anp", line0, level))
-            tick()
+def case_study(name: str, sweep: dict, solved: dict[str, dict]) -> dict:
+    """One case's study from its levels' rows (``solved``: ``unit_id`` -> ``run_unit``'s row): the converged line
+    and each row's errors against it."""
+    base, mid = _base(name, sweep)
+    rows = {element: [dict(solved[unit_id({"case": name, "element": element, "level": level})])
+                      for level in sweep[key]] for element, key in LEVEL_KEYS.items()}
     conv = mesh_converged(rows, mid)
     u_conv = np.asarray(conv["line_u_m"])
     for row in (r for element in ELEMENTS for r in rows.get(element, ())):
@@ -134,8 +164,9 @@ def run_case_levels(name: str, sweep: dict, tick=lambda: None) -> dict:
     return result
 
 
-def run_zhang_mesh(sweep: dict, tick=lambda: None) -> dict:
-    cases = {name: run_case_levels(name, sweep, tick) for name in sweep["cases"]}
+def combine(sweep: dict, solved: dict[str, dict]) -> dict:
+    """The study (the report's ``zhang_mesh`` case) from every unit's row, keyed by ``unit_id``."""
+    cases = {name: case_study(name, sweep, solved) for name in sweep["cases"]}
     measures = {}
     for name, case in cases.items():
         for element, row in case["report_mesh"].items():
@@ -146,6 +177,15 @@ def run_zhang_mesh(sweep: dict, tick=lambda: None) -> dict:
         measures[f"{name}_converged_mid_u_m"] = case["converged"]["mid_u_m"]
     return {"case": CASE, "title": "Mesh-converged references for Zhang's cases (linear and quadratic tets)",
             "sweep": sweep, "cases": cases, "measures": measures}
+
+
+def run_zhang_mesh(sweep: dict, tick=lambda: None) -> dict:
+    """The study in one process: every unit in turn, then ``combine`` (the report runs the units as its own tasks)."""
+    solved = {}
+    for unit in units(sweep):
+        solved[unit_id(unit)] = run_unit(unit)
+        tick()
+    return combine(sweep, solved)
 
 
 def mesh_bound(study: dict, case_name: str, case_tets: int | None, statistic: str) -> dict | None:
