@@ -180,23 +180,41 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
                 return {**result, "cached": cached, "computed_wall_s": wall}
 
             scene_result = scene_report.run_scene_parts(scene, budget, scene_sweep, part, bar.advance)
+        on_dask = workers is not None or scheduler is not None or client is not None
+        split = {}  # a split case's units: {case: {unit id: (result, cached, wall s)}}
         for name in names:
             bar.show(name)
             sweep = case_runs.sweep_for(name, level)
             # cases that build scenes or render depend on all of tissuerender, not only sim/ and this package
             case_code = (render_code or render_code_hash()) if name in case_runs.SCENE_CASES else code
+            if name in case_runs.SPLIT:
+                split[name] = {}
+                for unit, key, path in _split_units(name, sweep, versions, case_code, out):
+                    unit_id = case_runs.SPLIT[name][1](unit)
+                    if on_dask and _stored(path, key) is None:
+                        todo[(name, unit_id)] = ((name, None, unit), key, path, 1)
+                        continue
+                    split[name][unit_id] = _cached(path, key, lambda: case_runs.SPLIT[name][2](unit))
+                    bar.advance(1)
+                continue
             key = finite_json({"case": name, "sweep": sweep, "versions": versions, "code": case_code, "format": FORMAT})
             path = out / "cases" / f"{name}.json"
             stored = _stored(path, key)
-            if stored is None and (workers is not None or scheduler is not None or client is not None):
-                todo[name] = (sweep, key, path)  # run below, as Dask tasks
+            if stored is None and on_dask:
+                todo[(name, None)] = ((name, sweep, None), key, path, units[name])  # run below, as Dask tasks
                 continue
             result, cached, wall = _cached(path, key, lambda: case_runs.run_case(name, sweep, bar.advance))
             if cached:
                 bar.advance(units[name])
             results[name] = {**result, "cached": cached, "computed_wall_s": wall}
         if todo:
-            _run_cases_on_dask(todo, results, units, bar, workers, scheduler, client)
+            for (name, unit_id), (result, wall) in _run_on_dask(todo, bar, workers, scheduler, client).items():
+                if unit_id is None:
+                    results[name] = {**result, "cached": False, "computed_wall_s": wall}
+                else:
+                    split[name][unit_id] = (result, False, wall)
+        for name, parts in split.items():
+            results[name] = _combined(name, case_runs.sweep_for(name, level), parts)
         results = {name: results[name] for name in names}
         timings = {name: results[name]["computed_wall_s"] for name in names}
         if stages:
@@ -238,32 +256,56 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
     return report
 
 
-def _case_task(name: str, sweep: dict) -> tuple[dict, float]:
-    """One case as a Dask task: (its result, its wall time on the worker)."""
+def _split_units(name: str, sweep: dict, versions: dict, code: str, out: Path) -> list[tuple[dict, dict, Path]]:
+    """A split case's units (``cases.SPLIT``), each with its cache key and file ``cases/<case>/<unit id>.json``. The
+    key holds the unit (which carries the settings it runs with), not the whole sweep: a level added to or dropped
+    from the sweep leaves the other levels' files valid."""
+    units_of, unit_id, _, _ = case_runs.SPLIT[name]
+    return [(unit, finite_json({"case": name, "unit": unit, "versions": versions, "code": code, "format": FORMAT}),
+             out / "cases" / name / f"{unit_id(unit)}.json") for unit in units_of(sweep)]
+
+
+def _combined(name: str, sweep: dict, parts: dict[str, tuple[dict, bool, float]]) -> dict:
+    """A split case's result from its units' (result, cached, wall s), in the order ``units`` lists them whatever
+    the order they finished in: "cached" when every unit was, and each unit's own marker and wall time."""
+    units_of, unit_id, _, combine = case_runs.SPLIT[name]
+    ids = [unit_id(unit) for unit in units_of(sweep)]
+    result = finite_json(combine(sweep, {i: parts[i][0] for i in ids}))
+    return {**result, "cached": all(parts[i][1] for i in ids), "computed_wall_s": sum(parts[i][2] for i in ids),
+            "units": {i: {"cached": parts[i][1], "computed_wall_s": parts[i][2]} for i in ids}}
+
+
+def _case_task(name: str, sweep: dict | None, unit: dict | None) -> tuple[dict, float]:
+    """One case, or one unit of a split case, as a Dask task: (its result, its wall time on the worker)."""
     t0 = time.perf_counter()
-    result = finite_json(case_runs.run_case(name, sweep))
+    result = finite_json(case_runs.run_case(name, sweep) if unit is None else case_runs.SPLIT[name][2](unit))
     return result, time.perf_counter() - t0
 
 
-def _run_cases_on_dask(todo: dict, results: dict, units: dict, bar, workers, scheduler, client) -> None:
-    """The cases of ``todo`` as Dask tasks, each cached in ``cases/`` as it completes (a lost worker loses only
-    its unfinished case; rerunning the command reuses the others). Cases that run side by side share the
-    machine: their wall times are those of a loaded machine."""
+def _run_on_dask(todo: dict, bar, workers, scheduler, client) -> dict:
+    """The tasks of ``todo`` ({(case, unit id or None): ((case, sweep, unit), key, path, bar units)}) on Dask, each
+    cached as it completes (a lost worker loses only its unfinished task; rerunning the command reuses the
+    others): {(case, unit id or None): (result, wall s)}. Split cases' units go first, most refined first
+    (``units``'s order), so the longest solves do not start last. Tasks that run side by side share the machine:
+    their wall times are those of a loaded machine."""
     from contextlib import nullcontext
 
     from distributed import as_completed
 
+    done = {}
     opened = nullcontext(client) if client is not None else dask_client(workers, scheduler, lambda line: None)
     with opened as c:
-        futures = {c.submit(_case_task, name, sweep, pure=False, key=f"tissuerender-case-{name}-{time.time()!r}"): name
-                   for name, (sweep, _, _) in todo.items()}
+        futures = {c.submit(_case_task, *args, pure=False, priority=1 if task[1] is not None else 0,
+                            key=f"tissuerender-case-{task[0]}-{task[1] or 'all'}-{time.time()!r}"): task
+                   for task, (args, _, _, _) in todo.items()}
         for future in as_completed(list(futures)):
-            name = futures[future]
+            task = futures[future]
             result, wall = future.result()
-            _, key, path = todo[name]
+            _, key, path, units = todo[task]
             write_json(path, {"kind": KIND, "key": key, "wall_s": wall, "result": result})
-            results[name] = {**result, "cached": False, "computed_wall_s": wall}
-            bar.advance(units[name])
+            done[task] = (result, wall)
+            bar.advance(units)
+    return done
 
 
 # what issue 17 asks of the simulation cases that the report does not measure yet

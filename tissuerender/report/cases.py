@@ -47,6 +47,9 @@ EXTRA = {"liver_variational": (variational.SWEEPS, variational.run_variational, 
          viscoelastic.CASE: (viscoelastic.SWEEPS, viscoelastic.run_viscoelastic, viscoelastic.work_units),
          cantilever_sweep.CASE: (cantilever_sweep.SWEEPS, cantilever_sweep.run_cantilever_integrators, cantilever_sweep.work_units),
          buckling_sweep.CASE: (buckling_sweep.SWEEPS, buckling_sweep.run_buckling_sweep, buckling_sweep.work_units)}
+# cases whose work the report schedules and caches unit by unit: (units(sweep) -> JSON-ready units, unit_id(unit),
+# run_unit(unit) -> JSON-ready result, combine(sweep, {unit_id: result}) -> the case's result, as run_case's)
+SPLIT = {zhang_mesh.CASE: (zhang_mesh.units, zhang_mesh.unit_id, zhang_mesh.run_unit, zhang_mesh.combine)}
 CASES = ("msd", *MESH_CASES, "rates", *EXTRA)
 SCENE_CASES = ("liver_variational", "mitsuba")  # they build a shipped scene (and render): keyed on all the code
 
