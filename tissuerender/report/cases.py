@@ -6,7 +6,7 @@ convergence check of that reference, and the named ``measures`` the claims (``cl
   solution: ``explicit`` and ``cnn`` (K = 5, 4, 2, state saturation) over the time step. Only these two
   apply (XPBD, EBM and ChainMail need a tetrahedral mesh).
 - ``cylinder_extension``, ``cylinder_compression``, ``cube_shear``: Zhang §5.3.2 (``sim.cases.zhang``), and
-  ``cube_stretch`` (the same cube pulled 0.5 m along y),
+  ``cube_stretch`` (Zhang §5.3.3: the same cube pulled 0.3 m along its normal),
   Neo-Hookean 5.35, against the quasi-static Newton reference (``sim.integrators.reference``, relative
   gradient 1e-8) on the same mesh: ``xpbd`` (``material = "model"``: the same Neo-Hookean energy) over
   substeps x iterations, ``ebm`` over iterations (8 load steps over the 1 s ramp), ``explicit`` and ``cnn``
