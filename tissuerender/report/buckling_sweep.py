@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from sim.cases.buckling import buckling_cylinder, buckling_path
+from sim.cases.buckling import EULER_COMPRESSION, buckling_cylinder, buckling_path
 from sim.cases.zhang import relative_l2
 from sim.mesh.procedural import signed_volumes
 from tissuerender.report.measure import mesh_point, pareto_front, refusal
@@ -122,14 +122,14 @@ def run_buckling_sweep(sweep: dict, tick=lambda: None) -> dict:
             "mesh": {"nodes": int(model.n_nodes), "tets": int(model.n_tets)},
             "reference": {"kind": f"quasi-static Newton path, relative gradient 1e-8, {sweep['load_steps']} load "
                                   f"steps, linear tets without ANP (the integrators' own); ANP path for the critical "
-                                  f"compression {measures['anp_critical_compression_m']:.3f} m (Euler 0.31 m)",
+                                  f"compression {measures['anp_critical_compression_m']:.3f} m (Euler {EULER_COMPRESSION:g} m)",
                           "wall_s": reference_s, "sideways_m": deflection_ref,
                           "line_component": "x", "line_peak_m": float(d.max()),
                           "line_coord_m": case.line_coord.tolist(), "line_u_m": u_ref[case.line, COMPONENT].tolist()},
             "convergence": {"what": "the ANP path's smallest eigenvalue of the reduced tangent stiffness crosses zero "
                                     f"at {measures['anp_critical_compression_m']:.3f} m of compression, against Euler's "
-                                    "0.31 m", "relative_difference": abs(measures["anp_critical_compression_m"] / 0.31
-                                                                         - 1.0)},
+                                    f"{EULER_COMPRESSION:g} m", "relative_difference":
+                                        abs(measures["anp_critical_compression_m"] / EULER_COMPRESSION - 1.0)},
             "not_applicable": {k: v for k, v in refused.items() if v is not None},
             "path": path, "points": points, "pareto": pareto_front(points, "rel_l2"), "measures": measures,
             "error_fields": fields}
