@@ -345,7 +345,7 @@ def add_cli(subparsers) -> None:
     p.add_argument("scene", nargs="?", default=None, help="a scene file: report on its own settings (docs/report.md)")
     p.add_argument("-o", "--out", required=True, help="output folder (report.html, report.json, cases/)")
     p.add_argument("--budget", default=None, help="with a scene: error budget, e.g. sim=1%%,flip=0.002[,rmse=0.05]")
-    p.add_argument("--quick", action="store_true", help="coarser meshes, fewer settings and cases (about 2 minutes)")
+    p.add_argument("--quick", action="store_true", help="coarser meshes, fewer settings and cases (about 5 minutes)")
     p.add_argument("--cases", default=None, help=f"comma-separated subset of {', '.join(case_runs.CASES)}")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
     add_dask_options(p, "cases")

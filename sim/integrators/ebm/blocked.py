@@ -30,8 +30,8 @@ J^(-1/3) = y comes from ``sim.constitutive.kernels.inverse_cube_root`` (no libm 
 ``Psi`` is kept as a fraction ``num / den`` (``den = Q``, or ``Q^2`` with the fibre), so that a sweep divides
 once per tet: ``lambda' = num / (den sum_j w_j |g_j|^2)``.
 
-Kernels use ``fastmath={"contract"}`` only (fused multiply-add: one rounding instead of two, nothing else;
-no reassociation and no finite-math assumption, so the NaN checks keep working) and ``error_model="numpy"``
+Kernels use no ``fastmath``, not even "contract" (fused multiply-adds made a run that compiled the kernels step
+differently from one that loaded them from numba's cache: docs/xpbd.md, "Determinism"), and ``error_model="numpy"``
 (no division checks: divisors are guarded by selects). Results equal the scalar kernel's to rounding
 (tested to 1e-10 after several steps: tests/sim/integrators/ebm/test_kernels.py).
 """
@@ -314,12 +314,12 @@ def all_blocks(corners, params, relax, out, code, prony, forces, relax_a, first,
     raise NotImplementedError("sim.integrators.ebm.blocked.all_blocks runs in compiled code only")
 
 
-@overload(all_blocks, prefer_literal=True, jit_options={"error_model": "numpy", "fastmath": {"contract"}})
+@overload(all_blocks, prefer_literal=True, jit_options={"error_model": "numpy"})
 def _all_blocks_variant(corners, params, relax, out, code, prony, forces, relax_a, first, last):
     """One implementation per (material, Prony, forces), the three as literal types: the branches on them are
     resolved before the vectoriser runs, and a run compiles only the lane loops of the variants it calls (one
     function with all 16 inlined loops compiled far too slowly: docs/ebm.md#how-fast-and-why).
-    fastmath: only "contract"."""
+    No fastmath (docs/xpbd.md, "Determinism")."""
     if not all(isinstance(a, types.Literal) for a in (code, prony, forces)):
         return None  # numba retries with the arguments as literals (prefer_literal)
     c, pr, fo = int(code.literal_value), bool(prony.literal_value), bool(forces.literal_value)

@@ -182,9 +182,9 @@ def all_blocks_f32(corners, params, out, code, forces, first, last):
     raise NotImplementedError("sim.integrators.ebm.blocked.all_blocks_f32 runs in compiled code only")
 
 
-@overload(all_blocks_f32, prefer_literal=True, jit_options={"error_model": "numpy", "fastmath": {"contract"}})
+@overload(all_blocks_f32, prefer_literal=True, jit_options={"error_model": "numpy"})
 def _all_blocks_f32_variant(corners, params, out, code, forces, first, last):
-    """fastmath: only "contract"."""
+    """No fastmath (docs/xpbd.md, "Determinism")."""
     if not (isinstance(code, types.Literal) and isinstance(forces, types.Literal)):
         return None
     c, fo = int(code.literal_value), bool(forces.literal_value)

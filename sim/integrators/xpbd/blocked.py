@@ -16,8 +16,9 @@ gradients g_k = G b_k, sum_k w_k g_k . h_k = <G M, H>, so for G_D = F / |F| and 
 
 and the combined correction K = d1 F / |F| + d2 cof F moves node k by w_k K b_k. In turn (mode 0)
 the deviatoric step changes F to F + d1 (F M) / |F|, exactly what recomputing F from the moved nodes
-gives. Kernels use ``fastmath={"contract"}`` only (fused multiply-add: rounding changes, nothing else)
-and ``error_model="numpy"`` (no division checks; divisors are bounded away from zero by ``max``).
+gives. Kernels use no ``fastmath``, not even "contract": fused multiply-adds made a run that compiled the
+kernels step differently from one that loaded them from numba's cache (docs/xpbd.md, "Determinism"), and
+``error_model="numpy"`` (no division checks; divisors are bounded away from zero by ``max``).
 """
 from __future__ import annotations
 
@@ -241,14 +242,14 @@ def _sym_adjugate(S):
             s00 * s22 - s02 * s02, s01 * s02 - s00 * s12, s00 * s11 - s01 * s01)
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@njit(cache=True, error_model="numpy")
 def _project_lanes_coupled(p, s, lanes, inv_dt2):
     """Coupled 2x2 projection of all lanes of one block (``p``: its parameters, ``s``: scratch with the
     gathered edges; writes the node corrections to ``s``). With S = F^T F:
     a11 = <M, S> / |F|^2 + alpha~_D, a12 = det F tr M / |F| (F^T cof F = det F I),
     a22 = <M, adj S> + alpha~_H (cof F^T cof F = adj S). Branch-free so the lane loop vectorises:
     degenerate tets (|F| < 1e-12 or a singular 2x2 system) get zero corrections, as in project_tet.
-    fastmath: only "contract" (fused multiply-add), which changes rounding only."""
+    No fastmath (docs/xpbd.md, "Determinism")."""
     for l in range(lanes):
         b = _lane_b(p, l)
         F = _lane_defgrad(s, b, l)
@@ -281,11 +282,11 @@ def _project_lanes_coupled(p, s, lanes, inv_dt2):
         _lane_store_correction(p, s, l, b, K)
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@njit(cache=True, error_model="numpy")
 def _project_lanes_in_turn(p, s, lanes, inv_dt2):
     """Deviatoric then hydrostatic projection (mode 0) of all lanes of one block; the hydrostatic step
     sees F after the deviatoric step, F + d1 (F M) / |F|. Branch-free; zero corrections where
-    project_tet returns early. fastmath: only "contract"."""
+    project_tet returns early. No fastmath."""
     for l in range(lanes):
         b = _lane_b(p, l)
         F = _lane_defgrad(s, b, l)
