@@ -56,6 +56,22 @@ class Probe:
         """The capsules (a, b, radius) the probe is made of at ``t``: here its one segment."""
         return [(*self.segment(t), float(self.radius))]
 
+    def positions_at(self, ts) -> np.ndarray:
+        """:meth:`position` at each of the times ``ts`` (n,): (n, 3), the same values."""
+        ts = np.asarray(ts, dtype=np.float64).reshape(-1)
+        return np.stack([np.interp(ts, self.times, self.positions[:, k]) for k in range(3)], axis=1)
+
+    def capsule_rows(self, ts) -> np.ndarray:
+        """:meth:`capsules` at each of the times ``ts`` (n,) as rows ``a, b, radius``: (n, capsules, 7), the same
+        values (a subclass with other capsules overrides both, else its capsules are asked for one time at a time)."""
+        ts = np.asarray(ts, dtype=np.float64).reshape(-1)
+        if type(self).capsules is not Probe.capsules:
+            return np.array([[[*a, *b, r] for a, b, r in self.capsules(float(t))] for t in ts],
+                            dtype=np.float64).reshape(ts.size, -1, 7)
+        c = self.positions_at(ts)
+        half = 0.5 * self.length * self.axis if self.kind == "capsule" else np.zeros(3)
+        return np.concatenate([c - half, c + half, np.full((ts.size, 1), float(self.radius))], axis=1)[:, None, :]
+
     def push_out(self, x: np.ndarray, t: float, inv_mass: np.ndarray, load: np.ndarray) -> int:
         """Project the free nodes out of the probe at ``t``, summing into ``load`` (:func:`resolve_contact_load`):
         every capsule in turn (a mesh tool, ``sim.contact_bodies.MeshProbe``, its triangles instead). The centre and

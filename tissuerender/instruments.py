@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.pose import bracket, quat_matrix, slerp
+from sim.pose import brackets, quat_matrices, quat_matrix, slerp, slerps  # noqa: F401 (quat_matrix, slerp: re-exported)
 from sim.probe import Probe
 
 INSTRUMENT_KINDS = ("grasper", "l_hook")
@@ -68,49 +68,78 @@ def quat_from_axis(axis) -> np.ndarray:
     return q / np.linalg.norm(q)
 
 
-def _keyframe_orientations(tool) -> np.ndarray:
+def keyframe_arrays(tool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The tool's keyframes as arrays: times (k,), positions (k, 3), unit orientations (k, 4), jaw angles [deg]."""
+    times = np.array([k.t for k in tool.keyframes], dtype=np.float64)
+    positions = np.array([k.position for k in tool.keyframes], dtype=np.float64)
     default = quat_from_axis(tool.axis)
-    out = []
+    qs = []
     for k in tool.keyframes:
         q = getattr(k, "orientation", None)
-        out.append(default if q is None else np.asarray(q, float) / np.linalg.norm(q))
-    return np.array(out)
+        qs.append(default if q is None else np.asarray(q, float) / np.linalg.norm(q))
+    jaws = np.array([DEFAULT_JAW_DEG if getattr(k, "jaw_deg", None) is None else k.jaw_deg for k in tool.keyframes])
+    return times, positions, np.array(qs), jaws
+
+
+def pose_track(tool, ts, keys=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`pose` at each of the times ``ts`` (n,): positions (n, 3), rotations (n, 3, 3), jaw angles (n,) [rad],
+    each row the one-time call's bit for bit (``sim.pose``); ``keys``: :func:`keyframe_arrays` of the tool."""
+    times, positions, qs, jaws = keyframe_arrays(tool) if keys is None else keys
+    ts = np.asarray(ts, dtype=np.float64).reshape(-1)
+    position = np.stack([np.interp(ts, times, positions[:, c]) for c in range(3)], axis=1)
+    i, j, u = brackets(times, ts)
+    return position, quat_matrices(slerps(qs[i], qs[j], u)), np.radians(np.interp(ts, times, jaws))
 
 
 def pose(tool, t: float) -> tuple[np.ndarray, np.ndarray, float]:
     """(position (3,), rotation matrix (3, 3) tool frame -> world, jaw opening angle [rad]) at time ``t``."""
-    times = np.array([k.t for k in tool.keyframes], dtype=np.float64)
-    positions = np.array([k.position for k in tool.keyframes], dtype=np.float64)
-    position = np.array([np.interp(t, times, positions[:, c]) for c in range(3)])
-    i, j, u = bracket(times, t)
-    qs = _keyframe_orientations(tool)
-    q = slerp(qs[i], qs[j], u)
-    jaws = np.array([DEFAULT_JAW_DEG if getattr(k, "jaw_deg", None) is None else k.jaw_deg for k in tool.keyframes])
-    return position, quat_matrix(q), float(np.radians(np.interp(t, times, jaws)))
+    position, R, jaw = pose_track(tool, [t])
+    return position[0], R[0], float(jaw[0])
 
 
-def local_capsules(kind: str, radius: float, length: float, jaw: float = 0.0) -> list[tuple]:
-    """The instrument's capsules (a (3,), b (3,), radius) in the tool frame (module docstring)."""
-    o = np.zeros(3)
-    caps = [(np.array([0.0, 0.0, -length]), o, radius)]
+def local_capsule_track(kind: str, radius: float, length: float, jaw) -> list[tuple]:
+    """The instrument's capsules (a (n, 3), b (n, 3), radius) in the tool frame (module docstring) at the jaw
+    angles ``jaw`` (n,) [rad]."""
+    jaw = np.asarray(jaw, dtype=np.float64).reshape(-1)
+    n = jaw.size
+    row = lambda v: np.tile(np.asarray(v, dtype=np.float64), (n, 1))  # noqa: E731
+    o = row([0.0, 0.0, 0.0])
+    caps = [(row([0.0, 0.0, -length]), o, radius)]
     if kind == "grasper":
         rj, lj = JAW_RADIUS * radius, JAW_LENGTH * radius
         for side in (1.0, -1.0):
-            a = np.array([side * rj, 0.0, 0.0])
-            caps.append((a, a + lj * np.array([side * np.sin(0.5 * jaw), 0.0, np.cos(0.5 * jaw)]), rj))
+            a = row([side * rj, 0.0, 0.0])
+            tip = np.stack([side * np.sin(0.5 * jaw), np.zeros(n), np.cos(0.5 * jaw)], axis=1)
+            caps.append((a, a + lj * tip, rj))
     elif kind == "l_hook":
         rh = HOOK_RADIUS * radius
-        bend = np.array([0.0, 0.0, HOOK_REACH * radius])
-        caps += [(o, bend, rh), (bend, bend + np.array([HOOK_BEND * radius, 0.0, 0.0]), rh)]
+        bend = row([0.0, 0.0, HOOK_REACH * radius])
+        caps += [(o, bend, rh), (bend, bend + row([HOOK_BEND * radius, 0.0, 0.0]), rh)]
     else:
         raise ValueError(f"instrument kind must be one of {', '.join(INSTRUMENT_KINDS)}, found {kind!r}")
     return caps
 
 
+def local_capsules(kind: str, radius: float, length: float, jaw: float = 0.0) -> list[tuple]:
+    """The instrument's capsules (a (3,), b (3,), radius) in the tool frame (module docstring)."""
+    return [(a[0], b[0], r) for a, b, r in local_capsule_track(kind, radius, length, [jaw])]
+
+
+def capsule_track(tool, ts, keys=None) -> np.ndarray:
+    """The instrument's capsules in world coordinates at each of the times ``ts`` (n,): (n, capsules, 7), rows
+    ``a, b, radius`` (``p + R a`` per time: one BLAS product per time, as :func:`capsules`)."""
+    p, R, jaw = pose_track(tool, ts, keys)
+    rows = []
+    for a, b, r in local_capsule_track(tool.kind, tool.radius, tool.length, jaw):
+        world_a = p + np.matmul(R, np.ascontiguousarray(a)[:, :, None])[:, :, 0]
+        world_b = p + np.matmul(R, np.ascontiguousarray(b)[:, :, None])[:, :, 0]
+        rows.append(np.concatenate([world_a, world_b, np.full((p.shape[0], 1), float(r))], axis=1))
+    return np.ascontiguousarray(np.stack(rows, axis=1))
+
+
 def capsules(tool, t: float) -> list[tuple]:
     """The instrument's capsules in world coordinates at time ``t``."""
-    p, R, jaw = pose(tool, t)
-    return [(p + R @ a, p + R @ b, r) for a, b, r in local_capsules(tool.kind, tool.radius, tool.length, jaw)]
+    return [(row[0:3], row[3:6], float(row[6])) for row in capsule_track(tool, [t])[0]]
 
 
 def capsule_mesh(a, b, radius: float, count: int = 16):
@@ -156,10 +185,13 @@ class InstrumentProbe(Probe):
 
     def __init__(self, tool):
         self.tool = tool
-        times = np.array([k.t for k in tool.keyframes], dtype=np.float64)
-        positions = np.array([k.position for k in tool.keyframes], dtype=np.float64)
+        self.keys = keyframe_arrays(tool)  # the keyframes do not change: read once
+        times, positions = self.keys[0], self.keys[1]
         super().__init__(kind=tool.kind, radius=tool.radius, times=times, positions=positions,
                          axis=np.asarray(tool.axis, dtype=np.float64), length=tool.length)
 
     def capsules(self, t: float) -> list[tuple]:
-        return capsules(self.tool, t)
+        return [(row[0:3], row[3:6], float(row[6])) for row in self.capsule_rows([t])[0]]
+
+    def capsule_rows(self, ts) -> np.ndarray:
+        return capsule_track(self.tool, ts, self.keys)

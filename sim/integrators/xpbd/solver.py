@@ -231,7 +231,12 @@ class XPBD:
         substep_load = np.zeros(6)
         plane_loads = np.zeros((len(self.planes), 6))
         contact_loads = np.zeros((self.contact_pairs, 6))
-        for _ in range(self.substeps):
+        if fused is not None:  # the tools' capsules at every substep's end at once
+            ends = [t]
+            for _ in range(self.substeps):
+                ends.append(ends[-1] + h)
+            fused.begin_step(m.probes, ends[1:])
+        for s in range(self.substeps):
             t_next = t + h
             if self.cutter is not None:  # the blades remove the tets they sweep through over this substep
                 removed = self.cutter.sweep(x, t, t_next)
@@ -260,7 +265,7 @@ class XPBD:
             if self.contacts:
                 self.contact_set.begin(x)
             if fused is not None:  # every sweep in one compiled call (sim.integrators.xpbd.sweeps)
-                fused.run(x, w_tools, probes, t_next, inv_dt2, loads, plane_loads, contact_loads)
+                fused.run(x, w_tools, probes, s, t_next, inv_dt2, loads, plane_loads, contact_loads)
             for _ in range(0 if fused is not None else self.iterations // per_call):
                 for constraints in self.sets:
                     constraints.sweeps(x, inv_dt2, per_call)

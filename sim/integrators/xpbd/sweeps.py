@@ -68,21 +68,26 @@ def _grasp_sweep(x, w, nodes, offsets, lam, centre, alpha, load):
 
 @njit(cache=True)
 def substep_sweeps(x, w, w_tools, x_start, inv_dt2, iterations, node_index, params, lanes_used, colour_block,
-                   domain_colour, mode, n_threads, capsules, capsule_probe, probe_centre, probe_margin, push_nodes,
-                   push_start, probe_loads, grasp_nodes, grasp_offsets, grasp_lam, grasp_start, grasp_centre,
+                   domain_colour, mode, n_threads, capsules, capsule_start, probe_centre, probe_margin, probe_loads, grasp_nodes, grasp_offsets, grasp_lam, grasp_start, grasp_centre,
                    grasp_alpha, grasp_probe, plane_point, plane_normal, plane_acts, plane_dn, plane_loads, static_x,
                    n_nodes, entry_node, entry_contact, entry_hint, entry_start, candidates, all_triangles, c_tri_start,
                    tri_v, tri_adj, tri_lv, lv_start, lv_face, normals_at, substep, face_n, edge_n, corner_n, lo, hi,
                    c_reach, c_motion, c_closed, clear_x, clear_d, clear_m, c_sign, c_pair, lam_n, contact_tri,
                    contact_bary, contact_n, contact_loads):
-    """``iterations`` sweeps of one substep (module docstring). Tool p: capsules with ``capsule_probe == p`` (rows
-    a, b, radius), centre ``probe_centre[p]``, candidate nodes ``push_nodes[push_start[p]:push_start[p + 1]]``
-    (within ``probe_margin[p]`` of its capsules at ``x_start``), loads ``probe_loads[p]``; grasp g: nodes, offsets and
+    """``iterations`` sweeps of one substep (module docstring). Tool p: capsules ``capsule_start[p]:capsule_start[p +
+    1]`` (rows a, b, radius), centre ``probe_centre[p]``, candidate nodes those within ``probe_margin[p]`` of its
+    capsules at the substep's start (:func:`nodes_near_capsules`), loads ``probe_loads[p]``; grasp g: nodes, offsets and
     multipliers ``grasp_start[g]:grasp_start[g + 1]``, tool centre, ``alpha~``, its tool; plane k: point, normal, the
     nodes it acts on (a row of ``plane_acts``), its summed corrections ``plane_dn[k]``; then ``sim.contact_set``'s
     visited nodes (``project_entries``' arguments)."""
     x_start[:] = x
     sub = np.zeros(6)
+    n_probes = probe_centre.shape[0]
+    push_nodes, push_start = np.empty(n_probes * x.shape[0], np.int64), np.zeros(n_probes + 1, np.int64)
+    for p in range(n_probes):
+        near = nodes_near_capsules(x, w_tools, capsules[capsule_start[p]:capsule_start[p + 1]], probe_margin[p])
+        push_nodes[push_start[p]:push_start[p] + near.size] = near
+        push_start[p + 1] = push_start[p] + near.size
     for _ in range(iterations):
         blocked.gauss_seidel_blocked(x, node_index, params, lanes_used, colour_block, domain_colour, inv_dt2, mode, 1,
                                      n_threads)
@@ -94,9 +99,7 @@ def substep_sweeps(x, w, w_tools, x_start, inv_dt2, iterations, node_index, para
         for p in range(probe_centre.shape[0]):
             sub[:] = 0.0
             nodes = push_nodes[push_start[p]:push_start[p + 1]]
-            for k in range(capsules.shape[0]):
-                if capsule_probe[k] != p:
-                    continue
+            for k in range(capsule_start[p], capsule_start[p + 1]):
                 if motion2 < probe_margin[p] * probe_margin[p]:
                     push_nodes_out_of_capsule(x, w_tools, nodes, capsules[k, 0:3], capsules[k, 3:6], capsules[k, 6],
                                               probe_centre[p], sub)
@@ -123,7 +126,10 @@ def substep_sweeps(x, w, w_tools, x_start, inv_dt2, iterations, node_index, para
 class FusedSweeps:
     """Runs a substep's sweeps of an :class:`~sim.integrators.xpbd.solver.XPBD` in one call (:func:`substep_sweeps`);
     :meth:`covers` says whether it can. The planes' summed corrections become rows of one array (each
-    ``PlaneState.dn`` a view of its row)."""
+    ``PlaneState.dn`` a view of its row). :meth:`begin_step` finds the tools' capsules and centres at every
+    substep of the step at once (``Probe.capsule_rows``, the values one time at a time gives); the grasps' packed
+    nodes, offsets and multipliers are kept while no grasp's nodes change (each ``GraspState.lam`` a view of its
+    rows, zeroed at every substep)."""
 
     @staticmethod
     def covers(xpbd, probes) -> bool:
@@ -144,41 +150,73 @@ class FusedSweeps:
                 self.plane_acts[k] = p.acts
             p.dn = self.plane_dn[k]
         self.x_start = np.zeros((n, 3))
+        self.grasps_packed = None  # (grasps and their nodes arrays, inv_dt2) the packed grasp arrays are of
 
-    def run(self, x, w_tools, probes, t, inv_dt2, loads, plane_loads, contact_loads) -> None:
-        """The sweeps of the substep ending at ``t``, after the prediction, the grasps' update and the contacts'
-        broad phase."""
-        xp = self.xpbd
-        capsules, capsule_probe, centres, margins, nodes, push_start = [], [], [], [], [], [0]
-        for k, probe in enumerate(probes):
-            rows = np.array([[*a, *b, r] for a, b, r in probe.capsules(t)], dtype=np.float64).reshape(-1, 7)
-            margin = float(rows[:, 6].max()) if rows.size else 0.0
-            capsules.append(rows)
-            capsule_probe += [k] * rows.shape[0]
-            centres.append(probe.position(t))
-            margins.append(margin)
-            nodes.append(nodes_near_capsules(x, w_tools, rows, margin))
-            push_start.append(push_start[-1] + nodes[-1].size)
-        grasps = xp.grasps
-        lam = np.zeros((sum(g.nodes.size for g in grasps), 3))
-        grasp_start = np.concatenate([[0], np.cumsum([g.nodes.size for g in grasps])]).astype(np.int64)
-        for g, a, b in zip(grasps, grasp_start[:-1], grasp_start[1:]):
-            g.lam = lam[a:b]  # tear() reads the multipliers after the sweeps
+    def begin_step(self, probes: list, times: list) -> None:
+        """The capsules (substeps, capsules, 7), their ranges per tool, the tools' centres (substeps, tools, 3) and
+        largest radii (substeps, tools) of ``probes`` at the substeps' end ``times``."""
+        self.probes, self.times = list(probes), list(times)
+        rows = [p.capsule_rows(times) for p in probes]
+        n = len(times)
+        self.capsules = np.ascontiguousarray(np.concatenate(rows, axis=1) if rows else np.zeros((n, 0, 7)))
+        self.capsule_start = np.concatenate([[0], np.cumsum([r.shape[1] for r in rows])]).astype(np.int64)
+        self.centres = np.ascontiguousarray(np.stack([p.positions_at(times) for p in probes], axis=1) if probes
+                                            else np.zeros((n, 0, 3)))
+        self.margins = np.ascontiguousarray(np.stack([r[:, :, 6].max(axis=1) if r.shape[1] else np.zeros(n)
+                                                      for r in rows], axis=1) if rows else np.zeros((n, 0)))
+
+    def _tools(self, probes, s: int, t: float) -> tuple:
+        """Capsules, their ranges, centres and margins of ``probes`` at substep s (ending at ``t``): the step's
+        (:meth:`begin_step`) unless a probe was replaced for the substep (a cutting tool's shaft), then asked."""
+        if len(probes) == len(self.probes) and all(p is q for p, q in zip(probes, self.probes)):
+            return self.capsules[s], self.capsule_start, self.centres[s], self.margins[s]
+        rows = [np.array([[*a, *b, r] for a, b, r in p.capsules(t)], dtype=np.float64).reshape(-1, 7)
+                for p in probes]
+        capsules = np.ascontiguousarray(np.concatenate(rows) if rows else np.zeros((0, 7)))
+        start = np.concatenate([[0], np.cumsum([r.shape[0] for r in rows])]).astype(np.int64)
+        centres = np.array([p.position(t) for p in probes], dtype=np.float64).reshape(-1, 3)
+        margins = np.array([float(r[:, 6].max()) if r.size else 0.0 for r in rows], dtype=np.float64)
+        return capsules, start, centres, margins
+
+    def _pack_grasps(self, inv_dt2: float) -> None:
+        grasps = self.xpbd.grasps
+        key = ([(g, g.nodes) for g in grasps], inv_dt2)
+        kept = self.grasps_packed
+        if (kept is not None and kept[1] == inv_dt2 and len(kept[0]) == len(grasps)
+                and all(g is h and nodes is h.nodes for (g, nodes), h in zip(kept[0], grasps))):
+            return
+        self.grasps_packed = key
         cat = lambda parts, shape, dtype=np.float64: (  # noqa: E731
             np.ascontiguousarray(np.concatenate(parts), dtype=dtype) if parts else np.zeros(shape, dtype))
+        self.grasp_nodes = cat([g.nodes for g in grasps], (0,), np.int64)
+        self.grasp_offsets = cat([g.offsets for g in grasps], (0, 3))
+        self.grasp_lam = np.zeros((self.grasp_nodes.size, 3))
+        self.grasp_start = np.concatenate([[0], np.cumsum([g.nodes.size for g in grasps])]).astype(np.int64)
+        for g, a, b in zip(grasps, self.grasp_start[:-1], self.grasp_start[1:]):
+            g.lam = self.grasp_lam[a:b]  # tear() reads the multipliers after the sweeps
+        self.grasp_alpha = np.array([g.grasp.compliance * inv_dt2 for g in grasps], dtype=np.float64)
+        self.grasp_probe = np.array([g.grasp.probe for g in grasps], dtype=np.int64)
+
+    def run(self, x, w_tools, probes, s, t, inv_dt2, loads, plane_loads, contact_loads) -> None:
+        """The sweeps of substep ``s`` of the step, ending at ``t``, after the prediction, the grasps' update and
+        the contacts' broad phase."""
+        xp = self.xpbd
+        capsules, capsule_start, centres, margins = self._tools(probes, s, t)
+        self._pack_grasps(inv_dt2)
+        self.grasp_lam[:] = 0.0
+        tools = self.probes
+        grasp_centre = np.array([self.centres[s, g.grasp.probe] if g.grasp.probe < len(tools)
+                                 and g.probe is tools[g.grasp.probe] else g.probe.position(t) for g in xp.grasps],
+                                dtype=np.float64).reshape(-1, 3)
         node_index, params, lanes_used, colour_block = xp.sets[0].blocks
         cs = xp.contact_set
         substep_sweeps(
             x, xp.w, w_tools, self.x_start, inv_dt2, xp.iterations, node_index, params, lanes_used, colour_block,
-            xp.domain_colour, xp.mode, numba.get_num_threads(), cat(capsules, (0, 7)),
-            np.array(capsule_probe, dtype=np.int64), cat([c.reshape(1, 3) for c in centres], (0, 3)),
-            np.array(margins, dtype=np.float64), cat(nodes, (0,), np.int64), np.array(push_start, dtype=np.int64),
-            loads, cat([g.nodes for g in grasps], (0,), np.int64), cat([g.offsets for g in grasps], (0, 3)), lam,
-            grasp_start, cat([g.probe.position(t).reshape(1, 3) for g in grasps], (0, 3)),
-            np.array([g.grasp.compliance * inv_dt2 for g in grasps], dtype=np.float64),
-            np.array([g.grasp.probe for g in grasps], dtype=np.int64), self.plane_point, self.plane_normal,
-            self.plane_acts, self.plane_dn, plane_loads, cs.static_x, cs.n_nodes, cs.entry_node, cs.entry_contact,
-            cs.entry_hint, cs.entry_start, cs.candidates, cs.all_triangles, cs.c_tri_start, cs.tri_v, cs.tri_adj,
-            cs.tri_lv, cs.lv_start, cs.lv_face, cs.normals_at, cs.substep, cs.face_n, cs.edge_n, cs.corner_n, cs.lo,
-            cs.hi, cs.c_reach, cs.c_motion, cs.c_closed, cs.clear_x, cs.clear_d, cs.clear_m, cs.c_sign, cs.c_pair,
-            cs.lam_n, cs.tri, cs.bary, cs.normal, contact_loads)
+            xp.domain_colour, xp.mode, numba.get_num_threads(), capsules, capsule_start, centres, margins, loads,
+            self.grasp_nodes, self.grasp_offsets, self.grasp_lam, self.grasp_start, grasp_centre, self.grasp_alpha,
+            self.grasp_probe, self.plane_point, self.plane_normal, self.plane_acts, self.plane_dn, plane_loads,
+            cs.static_x, cs.n_nodes, cs.entry_node, cs.entry_contact, cs.entry_hint, cs.entry_start, cs.candidates,
+            cs.all_triangles, cs.c_tri_start, cs.tri_v, cs.tri_adj, cs.tri_lv, cs.lv_start, cs.lv_face,
+            cs.normals_at, cs.substep, cs.face_n, cs.edge_n, cs.corner_n, cs.lo, cs.hi, cs.c_reach, cs.c_motion,
+            cs.c_closed, cs.clear_x, cs.clear_d, cs.clear_m, cs.c_sign, cs.c_pair, cs.lam_n, cs.tri, cs.bary,
+            cs.normal, contact_loads)
