@@ -44,7 +44,14 @@ def test_drawn_probe_sits_on_the_dent_it_makes_with_the_default_dt(scene_dict, w
         seen.append(t)
         return segment(self, t)
 
+    capsule_rows = Probe.capsule_rows
+
+    def recording_rows(self, ts):  # the one-call sweeps ask for every substep's capsules of a step at once
+        seen.extend(np.asarray(ts, dtype=np.float64).reshape(-1).tolist())
+        return capsule_rows(self, ts)
+
     monkeypatch.setattr(Probe, "segment", recording_segment)
+    monkeypatch.setattr(Probe, "capsule_rows", recording_rows)
     world = build_world(scene, make_plan(scene), StageRecorder())
     tool = scene.tools[0]
     radius = tool.radius
