@@ -184,14 +184,19 @@ class ReferenceIntegrator:
         """``-K^-1 g`` by a sparse direct solve (``reference_quadratic`` orders its wider element couplings apart)."""
         return -spsolve(K.tocsc(), g)
 
+    def _free_dofs(self, kin: np.ndarray) -> np.ndarray:
+        """(3n,) bool: the dofs not of the kinematic nodes ``kin``."""
+        free = np.ones(3 * self.model.n_nodes, dtype=bool)
+        free[(kin[:, None] * 3 + np.arange(3)).ravel()] = False
+        return free
+
     def solve(self, x0, x_tilde, h, t):
         """Newton on Phi from ``x0`` with kinematic nodes at their targets at time ``t``."""
         m = self.model
         x = x0.copy()
         kin, target = m.kinematic_targets(t)
         x[kin] = target
-        free = np.ones(3 * m.n_nodes, dtype=bool)
-        free[(kin[:, None] * 3 + np.arange(3)).ravel()] = False
+        free = self._free_dofs(kin)
         f_ext = m.nodal_external_force()
         if not self.partial.empty:
             return self._solve_reduced(x, x_tilde, h, t, free, f_ext)
@@ -321,9 +326,8 @@ class ReferenceIntegrator:
         d.reshape(-1, 3)[kin] = target - x[kin]
         if not d.any():
             return None
-        free = np.ones(3 * m.n_nodes, dtype=bool)
-        free[(kin[:, None] * 3 + np.arange(3)).ravel()] = False
-        K = self._hessian(x, h, True).tocsr()
+        free = self._free_dofs(kin)
+        K = self._hessian(x, h, True)
         du = self._newton_step(K[free][:, free], K[free][:, ~free] @ d[~free])
         if not np.isfinite(du).all():
             return None
@@ -356,13 +360,13 @@ class ReferenceIntegrator:
         the plain one (only the kinematic nodes moved) where there is no prediction or its solve fails. The
         prediction took the quasi-static Newton from 7 to 3 iterations a load step on the quadratic cylinder and
         made the compressed ones solvable at all (docs/report.md, "Cost per unit")."""
-        start = self._predicted(x, h, t)
+        start, y = self._predicted(x, h, t), None
         if start is not None:
             try:
                 y = self.solve(start, None, h, t)
             except SimulationDiverged:
-                y = None
-        if start is None or y is None:
+                pass
+        if y is None:
             y = self.solve(x, None, h, t)
         self._commit(y, h)
         return y
