@@ -37,6 +37,8 @@ differently from one that loaded them from numba's cache: docs/xpbd.md, "Determi
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numba import literally, njit, types
 from numba.core.errors import TypingError
@@ -208,103 +210,101 @@ def _split_model(F, mu, kappa, eta, ax, ay, az, a0_norm, fibre):
     return num, Q, P
 
 
-@njit(cache=True, inline="always")
-def _lanes(code, prony, forces, c, p, r, out, blk, rblk, relax_a, lanes):
-    """The branch-free loop over the lanes of one block (``code``, ``prony``, ``forces`` are constants at each
-    call site). ``c``: the block's corner positions. Sweep (``forces`` False): the increments
-    ``-w_k lambda' g_k`` into ``out``; returns the number of NaN multipliers. Forces: ``dW/dx_k = V P b_k``,
-    ``W = V Psi`` and ``|F|^2`` into ``out``."""
-    bad = 0
-    for l in range(lanes):  # a run-time trip count: with a constant one LLVM unrolls the loop instead
-        b10, b11, b12 = p[blk, (ROW_B + 0) * LANES + l], p[blk, (ROW_B + 1) * LANES + l], p[blk, (ROW_B + 2) * LANES + l]
-        b20, b21, b22 = p[blk, (ROW_B + 3) * LANES + l], p[blk, (ROW_B + 4) * LANES + l], p[blk, (ROW_B + 5) * LANES + l]
-        b30, b31, b32 = p[blk, (ROW_B + 6) * LANES + l], p[blk, (ROW_B + 7) * LANES + l], p[blk, (ROW_B + 8) * LANES + l]
-        x0, y0, z0 = c[blk, 0 * LANES + l], c[blk, 1 * LANES + l], c[blk, 2 * LANES + l]
-        e1x, e1y, e1z = c[blk, 3 * LANES + l] - x0, c[blk, 4 * LANES + l] - y0, c[blk, 5 * LANES + l] - z0
-        e2x, e2y, e2z = c[blk, 6 * LANES + l] - x0, c[blk, 7 * LANES + l] - y0, c[blk, 8 * LANES + l] - z0
-        e3x, e3y, e3z = c[blk, 9 * LANES + l] - x0, c[blk, 10 * LANES + l] - y0, c[blk, 11 * LANES + l] - z0
-        F = (e1x * b10 + e2x * b20 + e3x * b30, e1x * b11 + e2x * b21 + e3x * b31, e1x * b12 + e2x * b22 + e3x * b32,
-             e1y * b10 + e2y * b20 + e3y * b30, e1y * b11 + e2y * b21 + e3y * b31, e1y * b12 + e2y * b22 + e3y * b32,
-             e1z * b10 + e2z * b20 + e3z * b30, e1z * b11 + e2z * b21 + e3z * b31, e1z * b12 + e2z * b22 + e3z * b32)
-        mu = p[blk, ROW_MU * LANES + l]
-        if code == NEO_HOOKEAN or code == ANISOTROPIC_NEO_HOOKEAN:
-            num, den, P = _split_model(F, mu, p[blk, ROW_KAPPA * LANES + l], p[blk, ROW_ETA * LANES + l],
-                                       p[blk, (ROW_FIBRE + 0) * LANES + l], p[blk, (ROW_FIBRE + 1) * LANES + l],
-                                       p[blk, (ROW_FIBRE + 2) * LANES + l], p[blk, ROW_FIBRE_NORM * LANES + l],
-                                       code == ANISOTROPIC_NEO_HOOKEAN)
-        else:
-            num, P = energy_piola_root(code, F, mu, p[blk, ROW_LAM * LANES + l], 0.0, 0.0, 0.0, 0.0, True)
-            den = 1.0
-        if prony:  # P^ = a P - F Gamma, Psi^ = a Psi - g (sim.constitutive.force_kernels._relaxed)
-            G = (r[rblk, (ROW_GAMMA + 0) * LANES + l], r[rblk, (ROW_GAMMA + 1) * LANES + l], r[rblk, (ROW_GAMMA + 2) * LANES + l],
-                 r[rblk, (ROW_GAMMA + 3) * LANES + l], r[rblk, (ROW_GAMMA + 4) * LANES + l], r[rblk, (ROW_GAMMA + 5) * LANES + l],
-                 r[rblk, (ROW_GAMMA + 6) * LANES + l], r[rblk, (ROW_GAMMA + 7) * LANES + l], r[rblk, (ROW_GAMMA + 8) * LANES + l])
-            f00, f01, f02, f10, f11, f12, f20, f21, f22 = F
-            P = (relax_a * P[0] - (f00 * G[0] + f01 * G[3] + f02 * G[6]),
-                 relax_a * P[1] - (f00 * G[1] + f01 * G[4] + f02 * G[7]),
-                 relax_a * P[2] - (f00 * G[2] + f01 * G[5] + f02 * G[8]),
-                 relax_a * P[3] - (f10 * G[0] + f11 * G[3] + f12 * G[6]),
-                 relax_a * P[4] - (f10 * G[1] + f11 * G[4] + f12 * G[7]),
-                 relax_a * P[5] - (f10 * G[2] + f11 * G[5] + f12 * G[8]),
-                 relax_a * P[6] - (f20 * G[0] + f21 * G[3] + f22 * G[6]),
-                 relax_a * P[7] - (f20 * G[1] + f21 * G[4] + f22 * G[7]),
-                 relax_a * P[8] - (f20 * G[2] + f21 * G[5] + f22 * G[8]))
-            num = relax_a * num - r[rblk, ROW_G * LANES + l] * den
-        if forces:
-            V = p[blk, ROW_VOLUME * LANES + l]
-            P = (V * P[0], V * P[1], V * P[2], V * P[3], V * P[4], V * P[5], V * P[6], V * P[7], V * P[8])
-        # node gradients g_k = P b_k (rows of P times the rows of Dm^-1), g_0 = -(g_1 + g_2 + g_3)
-        g1x = P[0] * b10 + P[1] * b11 + P[2] * b12
-        g1y = P[3] * b10 + P[4] * b11 + P[5] * b12
-        g1z = P[6] * b10 + P[7] * b11 + P[8] * b12
-        g2x = P[0] * b20 + P[1] * b21 + P[2] * b22
-        g2y = P[3] * b20 + P[4] * b21 + P[5] * b22
-        g2z = P[6] * b20 + P[7] * b21 + P[8] * b22
-        g3x = P[0] * b30 + P[1] * b31 + P[2] * b32
-        g3y = P[3] * b30 + P[4] * b31 + P[5] * b32
-        g3z = P[6] * b30 + P[7] * b31 + P[8] * b32
-        g0x = -(g1x + g2x + g3x)
-        g0y = -(g1y + g2y + g3y)
-        g0z = -(g1z + g2z + g3z)
-        if forces:
-            s0 = s1 = s2 = s3 = 1.0
-            out[blk, OUT_W * LANES + l] = p[blk, ROW_VOLUME * LANES + l] * (num / den)
-            out[blk, OUT_FF * LANES + l] = (F[0] * F[0] + F[1] * F[1] + F[2] * F[2] + F[3] * F[3] + F[4] * F[4]
-                                       + F[5] * F[5] + F[6] * F[6] + F[7] * F[7] + F[8] * F[8])
-        else:
-            w0, w1 = p[blk, (ROW_W + 0) * LANES + l], p[blk, (ROW_W + 1) * LANES + l]
-            w2, w3 = p[blk, (ROW_W + 2) * LANES + l], p[blk, (ROW_W + 3) * LANES + l]
-            denom = (w0 * (g0x * g0x + g0y * g0y + g0z * g0z) + w1 * (g1x * g1x + g1y * g1y + g1z * g1z)
-                     + w2 * (g2x * g2x + g2y * g2y + g2z * g2z) + w3 * (g3x * g3x + g3y * g3y + g3z * g3z))
-            ok = denom > 1e-300
-            lam_k = num / (den * denom if ok else 1.0)  # 5.7 (volume cancelled)
-            nan = denom != denom
-            bad += 1 if nan else 0
-            lam_k = lam_k if ok else (np.nan if nan else 0.0)
-            # 5.8: dx_k = -w_k lambda g_k; the node pass multiplies by w_k (a node's inverse mass, with its scale)
-            s0 = s1 = s2 = s3 = -lam_k
-        out[blk, (OUT_D + 0) * LANES + l] = s0 * g0x
-        out[blk, (OUT_D + 1) * LANES + l] = s0 * g0y
-        out[blk, (OUT_D + 2) * LANES + l] = s0 * g0z
-        out[blk, (OUT_D + 3) * LANES + l] = s1 * g1x
-        out[blk, (OUT_D + 4) * LANES + l] = s1 * g1y
-        out[blk, (OUT_D + 5) * LANES + l] = s1 * g1z
-        out[blk, (OUT_D + 6) * LANES + l] = s2 * g2x
-        out[blk, (OUT_D + 7) * LANES + l] = s2 * g2y
-        out[blk, (OUT_D + 8) * LANES + l] = s2 * g2z
-        out[blk, (OUT_D + 9) * LANES + l] = s3 * g3x
-        out[blk, (OUT_D + 10) * LANES + l] = s3 * g3y
-        out[blk, (OUT_D + 11) * LANES + l] = s3 * g3z
-    return bad
+@functools.lru_cache(maxsize=None)
+def _lane_loop(code, prony, forces):
+    """The branch-free loop over the lanes of one block for one (material ``code``, ``prony``, ``forces``), made
+    per variant so that the three are constants in its own IR: numba drops the branches of the other variants
+    before it inlines the material functions, and so copies only this variant's code into the caller
+    (docs/design.md, "Compile time"). ``c``: the block's corner positions. Sweep (``forces`` False): the
+    increments ``-w_k lambda' g_k`` into ``out``; returns the number of NaN multipliers. Forces:
+    ``dW/dx_k = V P b_k``, ``W = V Psi`` and ``|F|^2`` into ``out``."""
 
+    @njit(inline="always")
+    def lanes_of_block(c, p, r, out, blk, rblk, relax_a, lanes):
+        bad = 0
+        for l in range(lanes):  # a run-time trip count: with a constant one LLVM unrolls the loop instead
+            b10, b11, b12 = p[blk, (ROW_B + 0) * LANES + l], p[blk, (ROW_B + 1) * LANES + l], p[blk, (ROW_B + 2) * LANES + l]
+            b20, b21, b22 = p[blk, (ROW_B + 3) * LANES + l], p[blk, (ROW_B + 4) * LANES + l], p[blk, (ROW_B + 5) * LANES + l]
+            b30, b31, b32 = p[blk, (ROW_B + 6) * LANES + l], p[blk, (ROW_B + 7) * LANES + l], p[blk, (ROW_B + 8) * LANES + l]
+            x0, y0, z0 = c[blk, 0 * LANES + l], c[blk, 1 * LANES + l], c[blk, 2 * LANES + l]
+            e1x, e1y, e1z = c[blk, 3 * LANES + l] - x0, c[blk, 4 * LANES + l] - y0, c[blk, 5 * LANES + l] - z0
+            e2x, e2y, e2z = c[blk, 6 * LANES + l] - x0, c[blk, 7 * LANES + l] - y0, c[blk, 8 * LANES + l] - z0
+            e3x, e3y, e3z = c[blk, 9 * LANES + l] - x0, c[blk, 10 * LANES + l] - y0, c[blk, 11 * LANES + l] - z0
+            F = (e1x * b10 + e2x * b20 + e3x * b30, e1x * b11 + e2x * b21 + e3x * b31, e1x * b12 + e2x * b22 + e3x * b32,
+                 e1y * b10 + e2y * b20 + e3y * b30, e1y * b11 + e2y * b21 + e3y * b31, e1y * b12 + e2y * b22 + e3y * b32,
+                 e1z * b10 + e2z * b20 + e3z * b30, e1z * b11 + e2z * b21 + e3z * b31, e1z * b12 + e2z * b22 + e3z * b32)
+            mu = p[blk, ROW_MU * LANES + l]
+            if code == NEO_HOOKEAN or code == ANISOTROPIC_NEO_HOOKEAN:
+                num, den, P = _split_model(F, mu, p[blk, ROW_KAPPA * LANES + l], p[blk, ROW_ETA * LANES + l],
+                                           p[blk, (ROW_FIBRE + 0) * LANES + l], p[blk, (ROW_FIBRE + 1) * LANES + l],
+                                           p[blk, (ROW_FIBRE + 2) * LANES + l], p[blk, ROW_FIBRE_NORM * LANES + l],
+                                           code == ANISOTROPIC_NEO_HOOKEAN)
+            else:
+                num, P = energy_piola_root(code, F, mu, p[blk, ROW_LAM * LANES + l], 0.0, 0.0, 0.0, 0.0, True)
+                den = 1.0
+            if prony:  # P^ = a P - F Gamma, Psi^ = a Psi - g (sim.constitutive.force_kernels._relaxed)
+                G = (r[rblk, (ROW_GAMMA + 0) * LANES + l], r[rblk, (ROW_GAMMA + 1) * LANES + l], r[rblk, (ROW_GAMMA + 2) * LANES + l],
+                     r[rblk, (ROW_GAMMA + 3) * LANES + l], r[rblk, (ROW_GAMMA + 4) * LANES + l], r[rblk, (ROW_GAMMA + 5) * LANES + l],
+                     r[rblk, (ROW_GAMMA + 6) * LANES + l], r[rblk, (ROW_GAMMA + 7) * LANES + l], r[rblk, (ROW_GAMMA + 8) * LANES + l])
+                f00, f01, f02, f10, f11, f12, f20, f21, f22 = F
+                P = (relax_a * P[0] - (f00 * G[0] + f01 * G[3] + f02 * G[6]),
+                     relax_a * P[1] - (f00 * G[1] + f01 * G[4] + f02 * G[7]),
+                     relax_a * P[2] - (f00 * G[2] + f01 * G[5] + f02 * G[8]),
+                     relax_a * P[3] - (f10 * G[0] + f11 * G[3] + f12 * G[6]),
+                     relax_a * P[4] - (f10 * G[1] + f11 * G[4] + f12 * G[7]),
+                     relax_a * P[5] - (f10 * G[2] + f11 * G[5] + f12 * G[8]),
+                     relax_a * P[6] - (f20 * G[0] + f21 * G[3] + f22 * G[6]),
+                     relax_a * P[7] - (f20 * G[1] + f21 * G[4] + f22 * G[7]),
+                     relax_a * P[8] - (f20 * G[2] + f21 * G[5] + f22 * G[8]))
+                num = relax_a * num - r[rblk, ROW_G * LANES + l] * den
+            if forces:
+                V = p[blk, ROW_VOLUME * LANES + l]
+                P = (V * P[0], V * P[1], V * P[2], V * P[3], V * P[4], V * P[5], V * P[6], V * P[7], V * P[8])
+            # node gradients g_k = P b_k (rows of P times the rows of Dm^-1), g_0 = -(g_1 + g_2 + g_3)
+            g1x = P[0] * b10 + P[1] * b11 + P[2] * b12
+            g1y = P[3] * b10 + P[4] * b11 + P[5] * b12
+            g1z = P[6] * b10 + P[7] * b11 + P[8] * b12
+            g2x = P[0] * b20 + P[1] * b21 + P[2] * b22
+            g2y = P[3] * b20 + P[4] * b21 + P[5] * b22
+            g2z = P[6] * b20 + P[7] * b21 + P[8] * b22
+            g3x = P[0] * b30 + P[1] * b31 + P[2] * b32
+            g3y = P[3] * b30 + P[4] * b31 + P[5] * b32
+            g3z = P[6] * b30 + P[7] * b31 + P[8] * b32
+            g0x = -(g1x + g2x + g3x)
+            g0y = -(g1y + g2y + g3y)
+            g0z = -(g1z + g2z + g3z)
+            if forces:
+                s0 = s1 = s2 = s3 = 1.0
+                out[blk, OUT_W * LANES + l] = p[blk, ROW_VOLUME * LANES + l] * (num / den)
+                out[blk, OUT_FF * LANES + l] = (F[0] * F[0] + F[1] * F[1] + F[2] * F[2] + F[3] * F[3] + F[4] * F[4]
+                                           + F[5] * F[5] + F[6] * F[6] + F[7] * F[7] + F[8] * F[8])
+            else:
+                w0, w1 = p[blk, (ROW_W + 0) * LANES + l], p[blk, (ROW_W + 1) * LANES + l]
+                w2, w3 = p[blk, (ROW_W + 2) * LANES + l], p[blk, (ROW_W + 3) * LANES + l]
+                denom = (w0 * (g0x * g0x + g0y * g0y + g0z * g0z) + w1 * (g1x * g1x + g1y * g1y + g1z * g1z)
+                         + w2 * (g2x * g2x + g2y * g2y + g2z * g2z) + w3 * (g3x * g3x + g3y * g3y + g3z * g3z))
+                ok = denom > 1e-300
+                lam_k = num / (den * denom if ok else 1.0)  # 5.7 (volume cancelled)
+                nan = denom != denom
+                bad += 1 if nan else 0
+                lam_k = lam_k if ok else (np.nan if nan else 0.0)
+                # 5.8: dx_k = -w_k lambda g_k; the node pass multiplies by w_k (a node's inverse mass, with its scale)
+                s0 = s1 = s2 = s3 = -lam_k
+            out[blk, (OUT_D + 0) * LANES + l] = s0 * g0x
+            out[blk, (OUT_D + 1) * LANES + l] = s0 * g0y
+            out[blk, (OUT_D + 2) * LANES + l] = s0 * g0z
+            out[blk, (OUT_D + 3) * LANES + l] = s1 * g1x
+            out[blk, (OUT_D + 4) * LANES + l] = s1 * g1y
+            out[blk, (OUT_D + 5) * LANES + l] = s1 * g1z
+            out[blk, (OUT_D + 6) * LANES + l] = s2 * g2x
+            out[blk, (OUT_D + 7) * LANES + l] = s2 * g2y
+            out[blk, (OUT_D + 8) * LANES + l] = s2 * g2z
+            out[blk, (OUT_D + 9) * LANES + l] = s3 * g3x
+            out[blk, (OUT_D + 10) * LANES + l] = s3 * g3y
+            out[blk, (OUT_D + 11) * LANES + l] = s3 * g3z
+        return bad
 
-@njit(cache=True, inline="always")
-def _blocks(code, prony, forces, corners, params, relax, out, relax_a, lanes, first, last):
-    """The lane loop over blocks ``first:last`` (inlined into one function, so no call per block)."""
-    bad = 0
-    for blk in range(first, last):
-        bad += _lanes(code, prony, forces, corners, params, relax, out, blk, blk if prony else 0, relax_a, lanes)
-    return bad
+    return lanes_of_block
 
 
 def all_blocks(corners, params, relax, out, code, prony, forces, relax_a, first, last):
@@ -326,9 +326,14 @@ def _all_blocks_variant(corners, params, relax, out, code, prony, forces, relax_
     if c not in (NEO_HOOKEAN, ANISOTROPIC_NEO_HOOKEAN, STABLE_NEO_HOOKEAN, STVK):
         raise TypingError(f"sim.integrators.ebm.blocked: no blocked kernel for material code {c}")
 
+    lanes_of_block = _lane_loop(c, pr, fo)
+
     def impl(corners, params, relax, out, code, prony, forces, relax_a, first, last):
         lanes = corners.shape[1] // N_OUT  # LANES, as a run-time value
-        return _blocks(c, pr, fo, corners, params, relax, out, relax_a, lanes, first, last)
+        bad = 0
+        for blk in range(first, last):  # the lane loop inlined: no call per block
+            bad += lanes_of_block(corners, params, relax, out, blk, blk if pr else 0, relax_a, lanes)
+        return bad
 
     return impl
 
