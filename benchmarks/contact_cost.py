@@ -14,6 +14,9 @@ grasping that they take, ``fraction_beyond_probe`` = (on - probe) / on, the gras
 in CPU time (``cpu_seconds_step_*``, ``cpu_fraction``: one thread, so the process's own time, which other jobs on a
 shared machine disturb less than the wall clock), and
 ``grasped_nodes``, ``slab_liver_contacts``, ``wall_contacts`` (nodes in contact in the last substep: how much they did).
+The same is measured on liver_probe's own bodies, without the slab (the liver alone, its probe, the grasp and the
+liver-wall contact, against the liver stepped with none of them): ``seconds_step_liver_off``, ``seconds_step_liver_on``,
+``fraction_liver``, ``cpu_fraction_liver``, interleaved with the others.
 """
 from __future__ import annotations
 
@@ -42,11 +45,14 @@ from tissuerender.scene.load import scene_from_data  # noqa: E402
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "liver_probe.toml"
 
 
-def scene_with_contact():
-    """liver_probe with a grasp on its probe and the liver-wall contact."""
+def scene_with_contact(slab: bool = True):
+    """liver_probe with a grasp on its probe and the liver-wall contact, and (``slab``) the fat slab on the liver."""
     data = tomllib.loads(SCENE.read_text())
     # the capsule's lower end, not its path point, reaches the liver: a 3 cm grasp radius takes the nodes it presses
     data["tools"][0]["grasp"] = [{"t_close": 0.25, "t_release": 1.0, "radius": 0.03}]
+    if not slab:  # the scene's own bodies: the probe, its grasp and the liver-wall contact
+        data["contacts"] = [{"bodies": ["liver", "wall"], "friction": 0.3}]
+        return scene_from_data(data, SCENE, "benchmark")
     # on the liver's top (its highest node is at (0.045, 0.038, 0.097)); friction 0.8 holds it on the slope
     data["objects"].insert(1, {"name": "slab", "shape": "box", "size": [0.04, 0.04, 0.015], "cell_size": 0.01,
                                "material": "fat", "position": [0.025, 0.018, 0.099]})
@@ -83,6 +89,13 @@ def main() -> None:
     variants = {"off": (make_integrator("xpbd", off_model, settings), off_model),
                 "probe": (make_integrator("xpbd", probe_model, settings), probe_model),
                 "on": (stepper.integrator, on_model)}
+    # liver_probe's own bodies (no slab): the liver alone, without and with the probe, grasp and wall contact
+    scene_on = check_scene(scene_with_contact(slab=False)).world.integrators[0]
+    liver_model = scene_on.model
+    liver_off = copy.copy(liver_model)
+    liver_off.probes, liver_off.grasps, liver_off.contacts, liver_off.contact_planes = [], [], [], []
+    variants["liver_off"] = (make_integrator("xpbd", liver_off, settings), liver_off)
+    variants["liver_on"] = (scene_on, liver_model)
     dt = scene.simulation.dt
     steps = 6 if args.quick else round(0.5 / dt)  # the probe's whole path: it reaches the liver at 0.25 s
     rounds = 2 if args.quick else 5
@@ -104,6 +117,9 @@ def main() -> None:
               "cpu_seconds_step_off": round(med_cpu["off"], 5), "cpu_seconds_step_probe": round(med_cpu["probe"], 5),
               "cpu_seconds_step_on": round(med_cpu["on"], 5),
               "cpu_fraction": round((med_cpu["on"] - med_cpu["off"]) / med_cpu["on"], 4),
+              "seconds_step_liver_off": round(med["liver_off"], 5), "seconds_step_liver_on": round(med["liver_on"], 5),
+              "fraction_liver": round((med["liver_on"] - med["liver_off"]) / med["liver_on"], 4),
+              "cpu_fraction_liver": round((med_cpu["liver_on"] - med_cpu["liver_off"]) / med_cpu["liver_on"], 4),
               "grasped_nodes": int(on.grasps[0].nodes.size) if on.grasps else 0,
               "slab_liver_contacts": int(sum(np.count_nonzero(c.lam_n) for c in on.contacts[:2])),
               "wall_contacts": int(np.count_nonzero(on.contacts[2].lam_n)),
@@ -114,6 +130,9 @@ def main() -> None:
     print(f"  without contact and grasp {med['off'] * 1e3:8.2f} ms/step")
     print(f"  probe only (as shipped)   {med['probe'] * 1e3:8.2f} ms/step")
     print(f"  with probe, grasp, contact {med['on'] * 1e3:8.2f} ms/step  ({100 * result['fraction']:.1f} % of the step)")
+    print(f"liver_probe's own bodies (liver {liver_model.n_nodes} nodes, no slab): without {med['liver_off'] * 1e3:.2f}, "
+          f"with probe, grasp and wall contact {med['liver_on'] * 1e3:.2f} ms/step "
+          f"({100 * result['fraction_liver']:.1f} % of the step)")
     print(json.dumps(result))
 
 
