@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 import tomli_w
 
+import sim  # noqa: F401  (first: numba's cache stamps and inliner for every package's kernels, sim.numba_cache)
 import postfx.chain
 
 MINIMAL_SCENE = {

@@ -7,7 +7,7 @@ Python API (the CLI is a thin layer over it)::
     print(tissuerender.make_plan(scene).describe())          # the stages that will run, and why
     tissuerender.render(scene, "out/")                       # frames + manifest.json
 """
-import sim.numba_inline  # noqa: F401  (numba compiles faster; the compiled code is the same)
+import sim  # noqa: F401  (numba's cache stamps and inliner, sim.numba_cache and sim.numba_inline, before any kernel)
 from tissuerender.errors import SceneError, UserError
 from tissuerender.pipeline import render, render_image, render_passes
 from tissuerender.plan import make_plan
