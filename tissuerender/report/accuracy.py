@@ -31,6 +31,7 @@ from tissuerender.report import scene as scene_report
 from tissuerender.report import render_sweeps, stage_costs
 from tissuerender.report.claims import CLAIMS, claims_table
 from tissuerender.report.html import render_html
+from tissuerender.report.warmup import warm_kernels as warmup_kernels
 from tissuerender.scene import load_scene
 
 KIND = "tissuerender.report.accuracy"
@@ -142,13 +143,16 @@ def _cached(path: Path, key: dict, compute) -> tuple[dict, bool, float]:
 
 def run_report(out, quick: bool = False, cases: list[str] | None = None, level: str | None = None,
                progress: bool = False, scene=None, budget: dict | None = None, stages: bool | None = None,
-               workers: int | None = None, scheduler: str | None = None, client=None) -> dict:
+               workers: int | None = None, scheduler: str | None = None, client=None,
+               warmup: bool | None = None) -> dict:
     """Run (or reuse) every case, write the JSON and HTML; returns the report dict. ``level`` is the sweep
     size: "full", "quick" (``--quick``) or "tiny" (the test suite's); it defaults from ``quick``. With a
     ``scene`` (``scene.py``) the report is that scene's, and runs the cases only when ``cases`` names them.
     ``stages``: the per-stage costs of the shipped scenes (``stage_costs.py``) and the rendering sweeps
     (``render_sweeps.py``); by default with the default cases. With ``workers`` / ``scheduler`` / ``client``
-    the cases to compute run as Dask tasks (docs/dask.md)."""
+    the cases to compute run as Dask tasks (docs/dask.md). ``warmup``: first compile the kernels of the cases and
+    stages still to compute in one process per core (``warmup.py``); by default at the "quick" and "full" levels, on
+    this machine (not with a scheduler or client, whose workers may be elsewhere)."""
     out = output_folder(out)
     level = level or ("quick" if quick else "full")
     names = cases if cases is not None else [] if scene is not None else parse_cases(None, quick)
@@ -167,7 +171,18 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
                + len(shipped) + render_units)
     start = time.perf_counter()
     scene_result = costs = sweeps = None
+    warmup_done = None
     try:
+        if level != "tiny" and scheduler is None and client is None and (warmup is None or warmup):
+            cold = [n for n in names if not _all_stored(n, case_runs.sweep_for(n, level), versions,
+                                                      render_code or render_code_hash(), code, out)]
+            cold_stages = stages and not (_stored(out / "cases" / "stage_costs.json", _stage_key(
+                shipped, stage_sweep, versions, render_code)) and _stored(out / "cases" / "render_sweeps.json", {
+                    **_stage_key(shipped, stage_sweep, versions, render_code), "sweep": render_sweep,
+                    "part": "render_sweeps"}))
+            if cold or cold_stages:
+                bar.show("compiling kernels")
+                warmup_done = warmup_kernels(cold, cold_stages, render_code or render_code_hash(), show=bar.show)
         if scene is not None:
             bar.show(scene.name)
 
@@ -219,9 +234,7 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
         timings = {name: results[name]["computed_wall_s"] for name in names}
         if stages:
             bar.show("per-stage costs")
-            key = finite_json({"scenes": {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in shipped},
-                               "sweep": stage_sweep, "versions": versions, "code": render_code, "format": FORMAT,
-                               "numba_threads": numba.get_num_threads()})
+            key = _stage_key(shipped, stage_sweep, versions, render_code)
             result, cached, wall = _cached(out / "cases" / "stage_costs.json", key,
                                            lambda: stage_costs.run_stage_costs(stage_sweep, shipped, bar.advance))
             if cached:
@@ -242,7 +255,7 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
               + (f" --cases {','.join(names)}" if cases is not None else ""),
               "level": level, "sweeps": {n: case_runs.sweep_for(n, level) for n in names},
               "versions": versions, "code_sha256": code, "machine": machine(),
-              "wall_s": time.perf_counter() - start, "case_wall_s": timings,
+              "wall_s": time.perf_counter() - start, "case_wall_s": timings, "warmup": warmup_done,
               "part_wall_s": {**timings, **{name: part["computed_wall_s"] for name, part in
                                             (("stage_costs", costs), ("render_sweeps", sweeps)) if part}},
               "cases": results, "scene": scene_result, "stage_costs": costs, "render_sweeps": sweeps,
@@ -254,6 +267,23 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
     html = render_html(report)
     write_atomic(out / "report.html", lambda tmp: Path(tmp).write_text(html, encoding="utf-8"))
     return report
+
+
+def _stage_key(shipped: list[Path], sweep: dict, versions: dict, code: str) -> dict:
+    """The cache key of the per-stage costs (and, with the rendering sweep and part added, of the sweeps)."""
+    return finite_json({"scenes": {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in shipped},
+                        "sweep": sweep, "versions": versions, "code": code, "format": FORMAT,
+                        "numba_threads": numba.get_num_threads()})
+
+
+def _all_stored(name: str, sweep: dict, versions: dict, render_code: str, code: str, out: Path) -> bool:
+    """Whether case ``name`` (every unit of a split case) is stored in ``out`` under its current key."""
+    case_code = render_code if name in case_runs.SCENE_CASES else code
+    if name in case_runs.SPLIT:
+        return all(_stored(path, key) is not None for _, key, path in _split_units(name, sweep, versions, case_code,
+                                                                                   out))
+    key = finite_json({"case": name, "sweep": sweep, "versions": versions, "code": case_code, "format": FORMAT})
+    return _stored(out / "cases" / f"{name}.json", key) is not None
 
 
 def _split_units(name: str, sweep: dict, versions: dict, code: str, out: Path) -> list[tuple[dict, dict, Path]]:
@@ -321,7 +351,8 @@ def _cmd_accuracy(args) -> int:
     scene = load_scene(args.scene) if args.scene is not None else None
     out = output_folder(args.out)
     report = run_report(out, quick=args.quick, cases=names if args.cases else None, progress=not args.quiet,
-                        scene=scene, budget=budget, workers=args.workers, scheduler=args.scheduler)
+                        scene=scene, budget=budget, workers=args.workers, scheduler=args.scheduler,
+                        warmup=None if args.warmup else False)
     if not args.quiet and scene is not None:
         for part in ("simulation", "rendering"):
             done = report["scene"][part]
@@ -345,8 +376,10 @@ def add_cli(subparsers) -> None:
     p.add_argument("scene", nargs="?", default=None, help="a scene file: report on its own settings (docs/report.md)")
     p.add_argument("-o", "--out", required=True, help="output folder (report.html, report.json, cases/)")
     p.add_argument("--budget", default=None, help="with a scene: error budget, e.g. sim=1%%,flip=0.002[,rmse=0.05]")
-    p.add_argument("--quick", action="store_true", help="coarser meshes, fewer settings and cases (about 5 minutes)")
+    p.add_argument("--quick", action="store_true", help="coarser meshes, fewer settings and cases (about 4 minutes on 2 cores, a first run included)")
     p.add_argument("--cases", default=None, help=f"comma-separated subset of {', '.join(case_runs.CASES)}")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+    p.add_argument("--no-warmup", dest="warmup", action="store_false",
+                   help="do not compile the kernels in one process per core first (docs/report.md)")
     add_dask_options(p, "cases")
     p.set_defaults(func=_cmd_accuracy)
