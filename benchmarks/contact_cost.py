@@ -16,7 +16,10 @@ shared machine disturb less than the wall clock), and
 ``grasped_nodes``, ``slab_liver_contacts``, ``wall_contacts`` (nodes in contact in the last substep: how much they did).
 The same is measured on liver_probe's own bodies, without the slab (the liver alone, its probe, the grasp and the
 liver-wall contact, against the liver stepped with none of them): ``seconds_step_liver_off``, ``seconds_step_liver_on``,
-``fraction_liver``, ``cpu_fraction_liver``, interleaved with the others.
+``fraction_liver``, ``cpu_fraction_liver``, interleaved with the others. There the wall touches no node (the liver's
+base is held 4 cm above it); so, last, the liver *resting* on the wall (not held, the wall raised ``REST_LIFT`` to
+meet its underside, gravity settles it onto the wall's folds): ``seconds_step_rest_off`` (falling freely, no contact),
+``seconds_step_rest_on``, ``fraction_resting``, ``cpu_fraction_resting``, ``resting_wall_contacts``.
 """
 from __future__ import annotations
 
@@ -45,11 +48,23 @@ from tissuerender.scene.load import scene_from_data  # noqa: E402
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "liver_probe.toml"
 
 
-def scene_with_contact(slab: bool = True):
-    """liver_probe with a grasp on its probe and the liver-wall contact, and (``slab``) the fat slab on the liver."""
+# how far the resting variant raises the wall: its highest point under the liver's footprint (z = -0.0419 m as
+# shipped) then meets the liver's underside (z = 0)
+REST_LIFT = 0.0419
+
+
+def scene_with_contact(slab: bool = True, resting: bool = False):
+    """liver_probe with a grasp on its probe and the liver-wall contact, and (``slab``) the fat slab on the liver; or
+    (``resting``) the liver not held but lying on the wall under gravity, the wall raised to meet its underside."""
     data = tomllib.loads(SCENE.read_text())
     # the capsule's lower end, not its path point, reaches the liver: a 3 cm grasp radius takes the nodes it presses
     data["tools"][0]["grasp"] = [{"t_close": 0.25, "t_release": 1.0, "radius": 0.03}]
+    if resting:  # the organ on the abdominal wall: about a hundred nodes in contact once it has settled
+        del data["objects"][0]["fixed"]
+        x, y, z = data["objects"][1]["position"]
+        data["objects"][1]["position"] = [x, y, z + REST_LIFT]
+        data["contacts"] = [{"bodies": ["liver", "wall"], "friction": 0.3}]
+        return scene_from_data(data, SCENE, "benchmark")
     if not slab:  # the scene's own bodies: the probe, its grasp and the liver-wall contact
         data["contacts"] = [{"bodies": ["liver", "wall"], "friction": 0.3}]
         return scene_from_data(data, SCENE, "benchmark")
@@ -96,6 +111,13 @@ def main() -> None:
     liver_off.probes, liver_off.grasps, liver_off.contacts, liver_off.contact_planes = [], [], [], []
     variants["liver_off"] = (make_integrator("xpbd", liver_off, settings), liver_off)
     variants["liver_on"] = (scene_on, liver_model)
+    # the liver resting on the wall (not held): the wall contact does work at every substep
+    rest_on = check_scene(scene_with_contact(slab=False, resting=True)).world.integrators[0]
+    rest_model = rest_on.model
+    rest_off = copy.copy(rest_model)  # falls freely: the same elastic work per step
+    rest_off.probes, rest_off.grasps, rest_off.contacts, rest_off.contact_planes = [], [], [], []
+    variants["rest_off"] = (make_integrator("xpbd", rest_off, settings), rest_off)
+    variants["rest_on"] = (rest_on, rest_model)
     dt = scene.simulation.dt
     steps = 6 if args.quick else round(0.5 / dt)  # the probe's whole path: it reaches the liver at 0.25 s
     rounds = 2 if args.quick else 5
@@ -120,6 +142,10 @@ def main() -> None:
               "seconds_step_liver_off": round(med["liver_off"], 5), "seconds_step_liver_on": round(med["liver_on"], 5),
               "fraction_liver": round((med["liver_on"] - med["liver_off"]) / med["liver_on"], 4),
               "cpu_fraction_liver": round((med_cpu["liver_on"] - med_cpu["liver_off"]) / med_cpu["liver_on"], 4),
+              "seconds_step_rest_off": round(med["rest_off"], 5), "seconds_step_rest_on": round(med["rest_on"], 5),
+              "fraction_resting": round((med["rest_on"] - med["rest_off"]) / med["rest_on"], 4),
+              "cpu_fraction_resting": round((med_cpu["rest_on"] - med_cpu["rest_off"]) / med_cpu["rest_on"], 4),
+              "resting_wall_contacts": int(np.count_nonzero(rest_on.contacts[0].lam_n)),
               "grasped_nodes": int(on.grasps[0].nodes.size) if on.grasps else 0,
               "slab_liver_contacts": int(sum(np.count_nonzero(c.lam_n) for c in on.contacts[:2])),
               "wall_contacts": int(np.count_nonzero(on.contacts[2].lam_n)),
@@ -133,6 +159,9 @@ def main() -> None:
     print(f"liver_probe's own bodies (liver {liver_model.n_nodes} nodes, no slab): without {med['liver_off'] * 1e3:.2f}, "
           f"with probe, grasp and wall contact {med['liver_on'] * 1e3:.2f} ms/step "
           f"({100 * result['fraction_liver']:.1f} % of the step)")
+    print(f"liver_probe's liver resting on the wall (not held): without {med['rest_off'] * 1e3:.2f}, with probe, "
+          f"grasp and wall contact {med['rest_on'] * 1e3:.2f} ms/step ({100 * result['fraction_resting']:.1f} % of the "
+          f"step, {result['resting_wall_contacts']} nodes on the wall)")
     print(json.dumps(result))
 
 
