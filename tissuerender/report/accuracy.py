@@ -376,7 +376,8 @@ def add_cli(subparsers) -> None:
     p.add_argument("scene", nargs="?", default=None, help="a scene file: report on its own settings (docs/report.md)")
     p.add_argument("-o", "--out", required=True, help="output folder (report.html, report.json, cases/)")
     p.add_argument("--budget", default=None, help="with a scene: error budget, e.g. sim=1%%,flip=0.002[,rmse=0.05]")
-    p.add_argument("--quick", action="store_true", help="coarser meshes, fewer settings and cases (about 4 minutes on 2 cores, a first run included)")
+    p.add_argument("--quick", action="store_true",
+                   help="coarser meshes, fewer settings and cases (under 5 minutes on 2 cores, a first run included)")
     p.add_argument("--cases", default=None, help=f"comma-separated subset of {', '.join(case_runs.CASES)}")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
     p.add_argument("--no-warmup", dest="warmup", action="store_false",
