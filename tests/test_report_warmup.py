@@ -93,3 +93,33 @@ def test_the_report_warms_only_what_it_still_has_to_compute(tmp_path):
     again = accuracy.run_report(tmp_path, cases=[CASE], level="quick", stages=False)
     assert again["cases"][CASE]["cached"] is True and again["warmup"] is None  # nothing left to compile
     assert accuracy.run_report(tmp_path, cases=[CASE], level="quick", stages=False, warmup=False)["warmup"] is None
+
+
+def test_ctrl_c_stops_the_warmup_and_its_processes_at_once(tmp_path):
+    """SIGINT to the process group (Ctrl-C in a terminal) while the pool compiles: the command ends within seconds
+    (the pool's own exit would wait for every queued task) and no process of the group is left."""
+    import signal
+    import time
+
+    code = ("from tissuerender.report import warmup\nif __name__ == '__main__':\n"
+            "    warmup.warm_kernels(['cylinder_extension', 'viscoelastic_cube', 'rates'], False, 'code', processes=2)\n")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    run = subprocess.Popen([sys.executable, "-c", code], env=env, start_new_session=True, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.PIPE, text=True)
+    time.sleep(10)  # imports, then the two processes start compiling (the three cases take minutes cold)
+    assert run.poll() is None
+    os.killpg(run.pid, signal.SIGINT)
+    t0 = time.perf_counter()
+    _, err = run.communicate(timeout=60)
+    assert time.perf_counter() - t0 < 10, err[-2000:]
+    assert run.returncode != 0 and "KeyboardInterrupt" in err
+    left = True
+    for _ in range(50):  # the terminated processes and multiprocessing's resource tracker exit within moments
+        try:
+            os.killpg(run.pid, 0)
+        except ProcessLookupError:
+            left = False
+            break
+        time.sleep(0.1)
+    assert not left, subprocess.run(["ps", "-o", "pid,stat,cmd", "-g", str(run.pid)], capture_output=True,
+                                    text=True).stdout

@@ -124,13 +124,22 @@ def warm_kernels(names: list[str], stages: bool, code: str, processes: int | Non
     todo = tasks(names, stages)
     t0 = time.perf_counter()
     done = []
-    with ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"),
-                             initializer=_child_start, initargs=(numba.get_num_threads(),)) as pool:
+    pool = ProcessPoolExecutor(max_workers=processes, mp_context=get_context("spawn"), initializer=_child_start,
+                               initargs=(numba.get_num_threads(),))
+    try:
         futures = [pool.submit(run_task, task) for task in todo]
         for future in as_completed(futures):
             task, wall, error = future.result()
             done.append([list(task), wall, error])
             show(f"compiling kernels ({len(done)}/{len(todo)} tasks, {processes} processes)")
+    except BaseException:
+        # Ctrl-C or a lost process: stop at once (the pool's own exit would wait for every queued task); what the
+        # processes compiled so far stays in the cache
+        for process in list((getattr(pool, "_processes", None) or {}).values()):
+            process.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
     if not any(error for _, _, error in done):
         try:
             marker.parent.mkdir(parents=True, exist_ok=True)
