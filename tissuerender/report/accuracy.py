@@ -157,7 +157,7 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
     level = level or ("quick" if quick else "full")
     names = cases if cases is not None else [] if scene is not None else parse_cases(None, quick)
     versions, code = package_versions(), code_hash()
-    render_code = render_code_hash() if scene is not None or stages is not False else None
+    render_code = render_code_hash()  # once: cases that build scenes, the stages and the warm-up's marker use it
     results, timings, todo = {}, {}, {}
     units = {name: case_runs.work_units(name, case_runs.sweep_for(name, level)) for name in names}
     scene_sweep = scene_report.SCENE_SWEEPS[level]
@@ -175,14 +175,14 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
     try:
         if level != "tiny" and scheduler is None and client is None and (warmup is None or warmup):
             cold = [n for n in names if not _all_stored(n, case_runs.sweep_for(n, level), versions,
-                                                      render_code or render_code_hash(), code, out)]
+                                                      render_code, code, out)]
             cold_stages = stages and not (_stored(out / "cases" / "stage_costs.json", _stage_key(
                 shipped, stage_sweep, versions, render_code)) and _stored(out / "cases" / "render_sweeps.json", {
                     **_stage_key(shipped, stage_sweep, versions, render_code), "sweep": render_sweep,
                     "part": "render_sweeps"}))
             if cold or cold_stages:
                 bar.show("compiling kernels")
-                warmup_done = warmup_kernels(cold, cold_stages, render_code or render_code_hash(), show=bar.show)
+                warmup_done = warmup_kernels(cold, cold_stages, render_code, show=bar.show)
         if scene is not None:
             bar.show(scene.name)
 
@@ -201,7 +201,7 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
             bar.show(name)
             sweep = case_runs.sweep_for(name, level)
             # cases that build scenes or render depend on all of tissuerender, not only sim/ and this package
-            case_code = (render_code or render_code_hash()) if name in case_runs.SCENE_CASES else code
+            case_code = render_code if name in case_runs.SCENE_CASES else code
             if name in case_runs.SPLIT:
                 split[name] = {}
                 for unit, key, path in _split_units(name, sweep, versions, case_code, out):
@@ -212,7 +212,7 @@ def run_report(out, quick: bool = False, cases: list[str] | None = None, level: 
                     split[name][unit_id] = _cached(path, key, lambda: case_runs.SPLIT[name][2](unit))
                     bar.advance(1)
                 continue
-            key = finite_json({"case": name, "sweep": sweep, "versions": versions, "code": case_code, "format": FORMAT})
+            key = _case_key(name, sweep, versions, case_code)
             path = out / "cases" / f"{name}.json"
             stored = _stored(path, key)
             if stored is None and on_dask:
@@ -282,8 +282,12 @@ def _all_stored(name: str, sweep: dict, versions: dict, render_code: str, code: 
     if name in case_runs.SPLIT:
         return all(_stored(path, key) is not None for _, key, path in _split_units(name, sweep, versions, case_code,
                                                                                    out))
-    key = finite_json({"case": name, "sweep": sweep, "versions": versions, "code": case_code, "format": FORMAT})
-    return _stored(out / "cases" / f"{name}.json", key) is not None
+    return _stored(out / "cases" / f"{name}.json", _case_key(name, sweep, versions, case_code)) is not None
+
+
+def _case_key(name: str, sweep: dict, versions: dict, code: str) -> dict:
+    """The cache key of a (not split) case's file ``cases/<case>.json``."""
+    return finite_json({"case": name, "sweep": sweep, "versions": versions, "code": code, "format": FORMAT})
 
 
 def _split_units(name: str, sweep: dict, versions: dict, code: str, out: Path) -> list[tuple[dict, dict, Path]]:
