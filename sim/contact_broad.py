@@ -12,8 +12,16 @@ from sim.contact_mesh import build_grid, closest_with_distance2, corner_angle, u
 
 
 @njit(cache=True)
-def vertex_coordinate(x, static_x, n_nodes, v, d):
-    return x[v, d] if v < n_nodes else static_x[v - n_nodes, d]
+def load_triangle(x, static_x, n_nodes, tri_v, t, a, b, c):
+    """Triangle t's corners into the (3,) arrays a, b, c. One call per triangle, the loads inline: a helper taking
+    arrays costs far more per call than a load (docs/interaction.md, "The narrow phase's cost")."""
+    ia, ib, ic = tri_v[t, 0], tri_v[t, 1], tri_v[t, 2]
+    if ia >= n_nodes:  # a static surface's triangle: all three corners are its points
+        for d in range(3):
+            a[d], b[d], c[d] = static_x[ia - n_nodes, d], static_x[ib - n_nodes, d], static_x[ic - n_nodes, d]
+    else:
+        for d in range(3):
+            a[d], b[d], c[d] = x[ia, d], x[ib, d], x[ic, d]
 
 
 @njit(cache=True)
@@ -29,24 +37,29 @@ def _face_normal_and_box(x, static_x, n_nodes, tri_v, t, reach, face_n, lo, hi):
 
 
 @njit(cache=True)
-def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, first, cand, c0, c1, a, b, c):
+def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, first, cand, c0, c1, a, b, c,
+                     runner_up=False):
     """The nearest triangle within ``reach`` of point g over ``first`` (-1: none) then ``cand[c0:c1]``, skipping a
     triangle whose box (the grown box shrunk by ``reach``) or plane is farther than the best so far: ``(t, feature,
-    b0, b1, b2)``, t = -1 for none (``sim.contact_mesh.project_nodes``' search); ``a``, ``b``, ``c``: (3,) scratch."""
+    b0, b1, b2, second2)``, t = -1 for none (``sim.contact_mesh.project_nodes``' search); ``a``, ``b``, ``c``: (3,)
+    scratch. With ``runner_up``, ``second2`` is the squared distance to the nearest triangle other than t (at most
+    ``reach**2``; a triangle as near as t makes it t's): the skipping then compares with it, which leaves t the same;
+    without, ``second2`` is ``reach**2``."""
     best, best_t, best_f = reach * reach, -1, 0
+    second = reach * reach
     b0 = b1 = b2 = 0.0
     for s in range(c0 - (1 if first >= 0 else 0), c1):
         t = cand[s] if s >= c0 else first
+        if face_n[t, 0] == 0.0 and face_n[t, 1] == 0.0 and face_n[t, 2] == 0.0:
+            continue
+        bound = second if runner_up else best
         box2 = 0.0
         for d in range(3):
             r = max(lo[t, d] + reach - g[d], g[d] - (hi[t, d] - reach), 0.0)
             box2 += r * r
-        if box2 > best or face_n[t, 0] == 0.0 and face_n[t, 1] == 0.0 and face_n[t, 2] == 0.0:
+        if box2 > bound:
             continue
-        for d in range(3):
-            a[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 0], d)
-            b[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 1], d)
-            c[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 2], d)
+        load_triangle(x, static_x, n_nodes, tri_v, t, a, b, c)
         # the distance to the triangle's plane bounds the distance to it from below (a node resting on a surface lies
         # in the boxes of most triangles around it, not near their planes); pruned only beyond rounding (1e-9
         # relative, far above the few ulps the two computations differ by), so ties are searched as before
@@ -54,26 +67,41 @@ def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, firs
         ny = (b[2] - a[2]) * (c[0] - a[0]) - (b[0] - a[0]) * (c[2] - a[2])
         nz = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
         height = nx * (g[0] - a[0]) + ny * (g[1] - a[1]) + nz * (g[2] - a[2])
-        if height * height > best * (1.0 + 1e-9) * (nx * nx + ny * ny + nz * nz):
+        plane2 = height * height
+        normal2 = nx * nx + ny * ny + nz * nz
+        if plane2 > bound * (1.0 + 1e-9) * normal2:
             continue
         d2, e0, e1, e2, feature = closest_with_distance2(g, a, b, c)
-        if d2 <= best:
+        if t == best_t:  # the first triangle tried again in the list: the same distance
+            continue
+        # the nearest as without the runner-up: a triangle the best's box or plane test skips cannot become it
+        if d2 <= best and box2 <= best and plane2 <= best * (1.0 + 1e-9) * normal2:
+            if runner_up:
+                second = best
             best, best_t, best_f, b0, b1, b2 = d2, t, feature, e0, e1, e2
-    return best_t, best_f, b0, b1, b2
+        elif runner_up and d2 < second:
+            second = d2
+    return best_t, best_f, b0, b1, b2, second
+
+
+@njit(cache=True)
+def _grown(buf):
+    """``buf`` in a buffer twice as long (the caller writes on)."""
+    grown = np.empty(2 * buf.size + 16, buf.dtype)
+    grown[:buf.size] = buf
+    return grown
 
 
 @njit(cache=True)
 def _append(buf, n, value):
     if n == buf.size:
-        grown = np.empty(2 * buf.size + 16, buf.dtype)
-        grown[:n] = buf[:n]
-        buf = grown
+        buf = _grown(buf)
     buf[n] = value
     return buf
 
 
 @njit(cache=True)
-def _box_distance(g, lo, hi, t, reach):
+def _box_gap(g, lo, hi, t, reach):
     """Distance from g to triangle t's own box (its box grown by ``reach``, shrunk again)."""
     box2 = 0.0
     for d in range(3):
@@ -120,13 +148,10 @@ def _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0, origin,
                 cell_id = start_off + (ci * dims[1] + cj) * dims[2] + ck
                 for s in range(g_start[cell_id], g_start[cell_id + 1]):
                     t = t0 + g_items[items_off + s]
-                    if seen[t] == stamp or _box_distance(g, lo, hi, t, reach) ** 2 > best:
+                    if seen[t] == stamp or _box_gap(g, lo, hi, t, reach) ** 2 > best:
                         continue
                     seen[t] = stamp
-                    for d in range(3):
-                        a[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 0], d)
-                        b[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 1], d)
-                        c[d] = vertex_coordinate(x, static_x, n_nodes, tri_v[t, 2], d)
+                    load_triangle(x, static_x, n_nodes, tri_v, t, a, b, c)
                     best = min(best, closest_with_distance2(g, a, b, c)[0])
     return np.sqrt(best) * (1.0 - 1e-9)
 
@@ -179,12 +204,15 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
     at distance ``d0`` from its nearest triangle lists the triangles whose box is within ``d0 + 4 c_motion[c]`` of it
     (at most ``reach + 2 c_motion[c]``; a body surface's from a grid of the triangles near the tested nodes)
     (with every point moved less than ``c_motion`` since, the nearest then is among them: the node and the hint's
-    points each moved less than that). Returns ``(entry_node, entry_contact, entry_hint, entry_start, candidates)``:
-    per visited node its contact, hint and candidate triangles ``candidates[entry_start[e]:entry_start[e + 1]]``."""
+    points each moved less than that). Returns ``(entry_node, entry_contact, entry_hint, entry_start, candidates,
+    entry_second)``: per visited node its contact, hint, candidate triangles ``candidates[entry_start[e]:entry_start[e +
+    1]]`` and its distance to the nearest triangle other than the hint (at most ``reach``; ``nearest_triangle``'s
+    runner-up over the triangles whose grown box holds it, which include every listed one within ``reach``)."""
     n_contacts = c_reach.size
     entry_node = np.empty(nodes.size, np.int64)
     entry_contact = np.empty(nodes.size, np.int64)
     entry_hint = np.empty(nodes.size, np.int64)
+    entry_second = np.empty(nodes.size)
     entry_start = np.zeros(nodes.size + 1, np.int64)
     cand = np.empty(256, np.int64)
     near = np.empty(256, np.int64)  # a static surface's triangles in a node's grid cells, or a body's near its nodes
@@ -259,7 +287,9 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                 if g_clearance[cell_id] > reach:  # no triangle within reach of any point of the cell
                     continue
                 for s in range(g_start[cell_id], g_start[cell_id + 1]):
-                    cand = _append(cand, n_cand + n_near, t0 + g_items[g_items_off[c] + s])
+                    if n_cand + n_near == cand.size:
+                        cand = _grown(cand)
+                    cand[n_cand + n_near] = t0 + g_items[g_items_off[c] + s]
                     n_near += 1
             else:
                 cell = reach + grow
@@ -276,13 +306,15 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                     for d in range(3):
                         inside = inside and lo[t, d] <= g[d] <= hi[t, d]
                     if inside:
-                        cand = _append(cand, n_cand + n_near, t)
+                        if n_cand + n_near == cand.size:
+                            cand = _grown(cand)
+                        cand[n_cand + n_near] = t
                         n_near += 1
             # the node's nearest triangle of the last substep first: the box test then drops most of the others (the
             # result is the same: the last in ascending order among the nearest)
             first = last_hint[q] if last_hint[q] >= 0 else -1
-            hint, f, b0, b1, b2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, first, cand,
-                                                   n_cand, n_cand + n_near, pa, pb, pc)
+            hint, f, b0, b1, b2, second2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach,
+                                                            first, cand, n_cand, n_cand + n_near, pa, pb, pc, True)
             last_hint[q] = hint
             if hint < 0:
                 if c_static[c]:
@@ -294,11 +326,10 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                 continue
             if c_static[c]:
                 node_clear[q] = 0.0
+            load_triangle(x, static_x, n_nodes, tri_v, hint, pa, pb, pc)
             d0 = 0.0
             for d in range(3):
-                r = g[d] - (b0 * vertex_coordinate(x, static_x, n_nodes, tri_v[hint, 0], d)
-                            + b1 * vertex_coordinate(x, static_x, n_nodes, tri_v[hint, 1], d)
-                            + b2 * vertex_coordinate(x, static_x, n_nodes, tri_v[hint, 2], d))
+                r = g[d] - (b0 * pa[d] + b1 * pb[d] + b2 * pc[d])
                 d0 += r * r
             # a triangle within reach of the node during the sweeps is within reach + 2 c_motion of it now
             radius = min(np.sqrt(d0) + 4.0 * c_motion[c], reach + 2.0 * c_motion[c])
@@ -315,20 +346,30 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                             cell_id = g_start_off[c] + (ci * g_dims[c, 1] + cj) * g_dims[c, 2] + ck
                             for s in range(g_start[cell_id], g_start[cell_id + 1]):
                                 t = t0 + g_items[g_items_off[c] + s]
-                                if seen[t] != q and _box_distance(g, lo, hi, t, reach) <= radius:
-                                    seen[t] = q
-                                    cand = _append(cand, n_cand + n_list, t)
+                                if seen[t] == q:
+                                    continue
+                                seen[t] = q
+                                r0 = max(lo[t, 0] + reach - g[0], g[0] - (hi[t, 0] - reach), 0.0)
+                                r1 = max(lo[t, 1] + reach - g[1], g[1] - (hi[t, 1] - reach), 0.0)
+                                r2 = max(lo[t, 2] + reach - g[2], g[2] - (hi[t, 2] - reach), 0.0)
+                                if np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) <= radius:  # _box_gap, inline
+                                    if n_cand + n_list == cand.size:
+                                        cand = _grown(cand)
+                                    cand[n_cand + n_list] = t
                                     n_list += 1
                 cand[n_cand:n_cand + n_list].sort()
             else:
                 for s in range(pool0, pool1):
                     t = near[sub_items[s]]
-                    if _box_distance(g, lo, hi, t, reach) <= radius:
-                        cand = _append(cand, n_cand + n_list, t)
+                    if _box_gap(g, lo, hi, t, reach) <= radius:
+                        if n_cand + n_list == cand.size:
+                            cand = _grown(cand)
+                        cand[n_cand + n_list] = t
                         n_list += 1
             entry_node[n_entries], entry_contact[n_entries], entry_hint[n_entries] = i, c, hint
+            entry_second[n_entries] = np.sqrt(second2)
             n_cand += n_list
             n_entries += 1
             entry_start[n_entries] = n_cand
     return (entry_node[:n_entries].copy(), entry_contact[:n_entries].copy(), entry_hint[:n_entries].copy(),
-            entry_start[:n_entries + 1].copy(), cand[:n_cand].copy())
+            entry_start[:n_entries + 1].copy(), cand[:n_cand].copy(), entry_second[:n_entries].copy())

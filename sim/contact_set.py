@@ -27,7 +27,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.contact_broad import broad_phase, cell_clearance, feature_normals, nearest_triangle, vertex_coordinate
+from sim.contact_broad import broad_phase, cell_clearance, feature_normals, load_triangle, nearest_triangle
+from sim.contact_mesh import closest_with_distance2
 from sim.wrench import add_wrench
 
 
@@ -56,9 +57,9 @@ def _keep_clearance(e, g, distance, x, x_start, n_nodes, tri_v, hint, candidates
 
 @njit(cache=True)
 def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact, entry_hint, entry_start, candidates,
-                    all_triangles, c_tri_start, tri_v, tri_adj, tri_lv, lv_start, lv_face, normals_at, substep, face_n,
-                    edge_n, corner_n, lo, hi, c_reach, c_motion, c_closed, clear_x, clear_d, clear_m, c_sign, c_pair,
-                    lam_n, contact_tri, contact_bary, contact_n, loads):
+                    entry_second, all_triangles, c_tri_start, tri_v, tri_adj, tri_lv, lv_start, lv_face, normals_at,
+                    substep, face_n, edge_n, corner_n, lo, hi, c_reach, c_motion, c_closed, clear_x, clear_d, clear_m,
+                    c_sign, c_pair, lam_n, contact_tri, contact_bary, contact_n, loads):
     """One Gauss-Seidel pass of the contact constraint over the visited nodes (``sim.contact_mesh.project_nodes``'
     update: both sides moved by their inverse masses); per entry the summed normal impulse, the triangle,
     barycentrics and normal of its last correction; ``c_sign[c]`` times the impulse and its moment about the origin
@@ -85,13 +86,30 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
                 node = np.sqrt((g[0] - clear_x[e, 0]) ** 2 + (g[1] - clear_x[e, 1]) ** 2 + (g[2] - clear_x[e, 2]) ** 2)
                 if node + surface + clear_m[e] < clear_d[e]:
                     continue
-            t, f, b0, b1, b2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
-                                                entry_hint[e], candidates, entry_start[e], entry_start[e + 1], pa, pb,
-                                                pc)
+            # the hint is still the nearest listed triangle within reach, without searching the list, when its
+            # distance now plus the node's motion and the listed vertices' since the broad phase is under
+            # entry_second, the distance there to the nearest other triangle: each other listed triangle is then
+            # farther, and the search would return the hint with the same closest point. The margins (1e-9 reach,
+            # 1e-6 of reach**2) are far above the rounding of these sums (a few ulps of the coordinates) and keep
+            # clear of ties and of the search's box and plane skips. Written out here: a call passing arrays costs
+            # more than the test (docs/interaction.md, "The narrow phase's cost").
+            t, h, reach = -1, entry_hint[e], c_reach[c]
+            if entry_second[e] > 0.0:
+                load_triangle(x, static_x, n_nodes, tri_v, h, pa, pb, pc)
+                d2, e0, e1, e2, feature = closest_with_distance2(g, pa, pb, pc)
+                if d2 < reach * reach * (1.0 - 1e-6):
+                    surface = 0.0 if tri_v[h, 0] >= n_nodes else _listed_motion(
+                        x, x_start, n_nodes, tri_v, h, candidates, entry_start[e], entry_start[e + 1])
+                    if np.sqrt(d2) + np.sqrt(motion2) + surface + 1e-9 * reach < entry_second[e]:
+                        t, f, b0, b1, b2 = h, feature, e0, e1, e2
+            if t < 0:
+                t, f, b0, b1, b2, _ = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
+                                                       entry_hint[e], candidates, entry_start[e], entry_start[e + 1],
+                                                       pa, pb, pc)
         else:
-            t, f, b0, b1, b2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
-                                                entry_hint[e], all_triangles, c_tri_start[c], c_tri_start[c + 1], pa,
-                                                pb, pc)
+            t, f, b0, b1, b2, _ = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
+                                                   entry_hint[e], all_triangles, c_tri_start[c], c_tri_start[c + 1],
+                                                   pa, pb, pc)
         clear_d[e] = 0.0
         if t < 0:
             if listed and c_closed[c]:  # no listed triangle within reach
@@ -102,12 +120,10 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         if va < n_nodes and normals_at[t] != substep:  # a body surface's, at the broad phase's positions
             feature_normals(x_start, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edge_n, corner_n)
             normals_at[t] = substep
-        qx = (b0 * vertex_coordinate(x, static_x, n_nodes, va, 0) + b1 * vertex_coordinate(x, static_x, n_nodes, vb, 0)
-              + b2 * vertex_coordinate(x, static_x, n_nodes, vc, 0))
-        qy = (b0 * vertex_coordinate(x, static_x, n_nodes, va, 1) + b1 * vertex_coordinate(x, static_x, n_nodes, vb, 1)
-              + b2 * vertex_coordinate(x, static_x, n_nodes, vc, 1))
-        qz = (b0 * vertex_coordinate(x, static_x, n_nodes, va, 2) + b1 * vertex_coordinate(x, static_x, n_nodes, vb, 2)
-              + b2 * vertex_coordinate(x, static_x, n_nodes, vc, 2))
+        load_triangle(x, static_x, n_nodes, tri_v, t, pa, pb, pc)
+        qx = b0 * pa[0] + b1 * pb[0] + b2 * pc[0]
+        qy = b0 * pa[1] + b1 * pb[1] + b2 * pc[1]
+        qz = b0 * pa[2] + b1 * pb[2] + b2 * pc[2]
         dx, dy, dz = g[0] - qx, g[1] - qy, g[2] - qz
         if f < 3:
             Nx, Ny, Nz = corner_n[t, f, 0], corner_n[t, f, 1], corner_n[t, f, 2]
@@ -297,12 +313,13 @@ class ContactSet:
         if x is None or not self.contacts:
             empty = np.zeros(0, np.int64)
             self.entry_node, self.entry_contact, self.entry_hint, self.candidates = empty, empty, empty, empty
+            self.entry_second = np.zeros(0)
             self.entry_start = np.zeros(1, np.int64)
         else:
             self.x_start[:] = x
             self.substep += 1
-            (self.entry_node, self.entry_contact, self.entry_hint, self.entry_start,
-             self.candidates) = broad_phase(
+            (self.entry_node, self.entry_contact, self.entry_hint, self.entry_start, self.candidates,
+             self.entry_second) = broad_phase(
                 x, self.static_x, self.n_nodes, self.c_static, self.c_reach, self.c_motion, self.c_node_start,
                 self.nodes, self.c_tri_start, self.tri_v, self.g_origin, self.g_cell, self.g_dims, self.g_start_off,
                 self.g_items_off, self.g_start, self.g_items, self.g_clearance, self.node_ref, self.node_clear,
@@ -320,11 +337,11 @@ class ContactSet:
     def arrays(self) -> tuple:
         """The narrow phase's arguments after ``x, w`` (:func:`project_entries`, up to ``loads``)."""
         return (self.x_start, self.static_x, self.n_nodes, self.entry_node, self.entry_contact, self.entry_hint,
-                self.entry_start, self.candidates, self.all_triangles, self.c_tri_start, self.tri_v, self.tri_adj,
-                self.tri_lv, self.lv_start, self.lv_face, self.normals_at, self.substep, self.face_n,
-                self.edge_n, self.corner_n, self.lo, self.hi, self.c_reach, self.c_motion, self.c_closed, self.clear_x,
-                self.clear_d, self.clear_m, self.c_sign, self.c_pair,
-                self.lam_n, self.tri, self.bary, self.normal)
+                self.entry_start, self.candidates, self.entry_second, self.all_triangles, self.c_tri_start,
+                self.tri_v, self.tri_adj, self.tri_lv, self.lv_start, self.lv_face, self.normals_at, self.substep,
+                self.face_n, self.edge_n, self.corner_n, self.lo, self.hi, self.c_reach, self.c_motion, self.c_closed,
+                self.clear_x, self.clear_d, self.clear_m, self.c_sign, self.c_pair, self.lam_n, self.tri, self.bary,
+                self.normal)
 
     def project(self, x: np.ndarray, w: np.ndarray, loads: np.ndarray) -> int:
         """One pass over the visited nodes; adds the impulses to ``loads`` (pairs, 6) (:func:`project_entries`)."""

@@ -1,12 +1,13 @@
 """The contact broad phase and the fused sweeps (issue 21, "Performance"; ``sim.contact_set``, ``sim.contact_broad``,
 ``sim.integrators.xpbd.sweeps``) change the cost, not the result: a stack of two blocks on a floor, with friction,
-a capsule tool pushing into the top and a grasp, steps bit for bit the same with the candidate lists as with every
+a capsule tool pushing into the top and a grasp, and a block settling on a folded static sheet, step bit for bit the
+same with the candidate lists (and the hint kept without a search while it is provably nearest) as with every
 triangle searched in every sweep, and with one compiled call per substep as with the per-sweep Python loop."""
 import numpy as np
 
 from sim.contact import ContactPlane, Grasp
-from sim.contact_bodies import add_body_contact, merge_models
-from sim.contact_broad import _static_clearance
+from sim.contact_bodies import add_body_contact, add_static_contact, merge_models
+from sim.contact_broad import _static_clearance, nearest_triangle
 from sim.contact_bodies import SurfaceContact, SurfaceContactState
 from sim.contact_mesh import closest_on_triangle
 from sim.contact_set import ContactSet
@@ -60,6 +61,71 @@ def test_candidate_lists_and_the_fused_sweeps_step_bit_for_bit_as_full_searches_
     assert loop.fused is None
     assert np.array_equal(state.x, state_ref.x) and np.array_equal(state.v, state_ref.v)
     assert np.array_equal(loads, loads_ref)
+
+
+def _sheet(n=9, half=0.12, fold=0.01):
+    """An open triangulated sheet folded along x (ridges and valleys: nodes rest on faces, edges and vertices)."""
+    u = np.linspace(-half, half, n)
+    gx, gy = np.meshgrid(u, u, indexing="ij")
+    points = np.stack([gx.ravel(), gy.ravel(), fold * np.sin(40.0 * gx.ravel()) + 0.004 * gy.ravel()], axis=1)
+    k = np.arange((n - 1) * n).reshape(n - 1, n)[:, :n - 1].ravel()
+    faces = np.concatenate([np.stack([k, k + n, k + n + 1], 1), np.stack([k, k + n + 1, k + 1], 1)])
+    return points, faces
+
+
+def test_a_block_settling_on_a_static_sheet_steps_bit_for_bit_as_full_searches():
+    points, faces = _sheet()
+    mesh = procedural.box((0.08, 0.06, 0.03), (4, 3, 2), origin=(-0.04, -0.03, 0.012))
+    model = Model.from_mesh(mesh, E=2e4, nu=0.3, density=1000.0, gravity=np.array([0.0, 0.0, -9.81]))
+    add_static_contact(model, np.arange(model.n_nodes), points, faces, friction=0.3, pair=0, reach=0.02)
+    fused, state, loads = _steps(model, steps=20)
+    assert fused.fused is not None
+    # it has settled onto the folds: the block presses the sheet down with about its weight, several nodes in contact
+    weight = float(model.mass.sum()) * 9.81
+    assert abs(loads[-1, -4] + weight) < 0.1 * weight and np.count_nonzero(fused.contacts[0].lam_n) >= 4
+    fraction = ContactSet.motion_fraction
+    covers = sweeps.FusedSweeps.covers
+    try:
+        sweeps.FusedSweeps.covers = staticmethod(lambda xpbd, probes: False)
+        ContactSet.motion_fraction = 0.0
+        loop, state_ref, loads_ref = _steps(model, steps=20)
+    finally:
+        sweeps.FusedSweeps.covers, ContactSet.motion_fraction = covers, fraction
+    assert np.array_equal(state.x, state_ref.x) and np.array_equal(state.v, state_ref.v)
+    assert np.array_equal(loads, loads_ref)
+
+
+def test_the_runner_up_is_the_second_nearest_triangle_capped_at_reach():
+    """``nearest_triangle(..., runner_up=True)``: the same nearest triangle as without, and the squared distance to
+    the nearest other triangle (brute force) or reach**2 when none is nearer; a point on a shared edge or vertex has
+    its runner-up as near as its nearest."""
+    points, faces = _sheet(n=6)
+    state = SurfaceContactState(SurfaceContact(np.zeros(0), faces, points, reach=0.03), np.zeros((0, 3)))
+    cs = ContactSet([state], 0)
+    reach = state.reach
+    everything = np.arange(faces.shape[0], dtype=np.int64)
+    scratch = [np.empty(3) for _ in range(3)]
+    rng = np.random.default_rng(3)
+    queries = list(rng.uniform([-0.13, -0.13, -0.04], [0.13, 0.13, 0.04], (300, 3))) + [points[14], points[15] * 0.5 + points[21] * 0.5]
+    ties = 0
+    for g in queries:
+        d2 = np.array([np.sum((g - sum(b * points[f[j]] for j, b in enumerate(closest_on_triangle(g, *points[f])[:3])))
+                              ** 2) for f in faces])
+        t, f, b0, b1, b2, second2 = nearest_triangle(g, np.zeros((0, 3)), cs.static_x, 0, cs.tri_v, cs.face_n, cs.lo,
+                                                     cs.hi, reach, -1, everything, 0, everything.size, *scratch, True)
+        plain = nearest_triangle(g, np.zeros((0, 3)), cs.static_x, 0, cs.tri_v, cs.face_n, cs.lo, cs.hi, reach, -1,
+                                 everything, 0, everything.size, *scratch)
+        assert plain[:5] == (t, f, b0, b1, b2) and plain[5] == reach * reach
+        order = np.argsort(d2, kind="stable")
+        if d2[order[0]] > reach * reach:
+            assert t == -1 and second2 == reach * reach
+            continue
+        assert abs(d2[t] - d2[order[0]]) <= 1e-15
+        expected = min(np.delete(d2, t).min(), reach * reach)
+        # both are the same few-flop sums over the same coordinates: equal to rounding (1e-16 m^2 at 0.1 m)
+        assert abs(second2 - expected) <= 1e-15
+        ties += second2 - d2[t] <= 1e-15
+    assert ties >= 2  # the vertex and the edge midpoint
 
 
 def test_a_static_surface_clearance_is_its_distance_capped_at_two_reach():
