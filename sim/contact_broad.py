@@ -190,14 +190,17 @@ def feature_normals(x, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edg
 
 @njit(cache=True)
 def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start, nodes, c_tri_start, tri_v, g_origin,
-                g_cell, g_dims, g_start_off, g_items_off, g_start, g_items, g_clearance, node_ref, node_clear,
+                g_cell, g_dims, g_start_off, g_items_off, g_start, g_items, g_clearance, own_frame, own_dims, own_off,
+                own_start, own_items, node_ref, node_clear,
                 last_hint, face_n, lo, hi):
     """The substep's visited nodes (module docstring) of every contact c (its tested ``nodes[c_node_start[c]:
     c_node_start[c + 1]]``, its triangles ``c_tri_start[c]:c_tri_start[c + 1]``). Updates a body surface's
     ``face_n``, ``lo``, ``hi`` (all its triangles; edge and corner normals: :func:`feature_normals`, on demand). A
     static surface's grid: origin, cell, dims, and ``g_start[g_start_off[c]:]``,
     ``g_items[g_items_off[c]:]`` (``sim.contact_mesh.build_grid``, triangle ids local to the surface), ``g_clearance``
-    per cell a lower bound of its distance to the surface (:func:`cell_clearance`); a static surface's tested node q
+    per cell a lower bound of its distance to the surface (:func:`cell_clearance`); the grid of its triangles' own boxes
+    (``sim.contact_set.own_box_grid``: ``own_frame[c]`` origin and cell, ``own_dims[c]``, ``own_start`` and
+    ``own_items`` from ``own_off[c]``) for the lists and clearances; a static surface's tested node q
     not within reach of it gets in ``node_clear[q]`` its distance to it (at most ``2 reach``) at ``node_ref[q]``: it is
     not tested again before it has moved ``node_clear[q] - reach``; ``last_hint[q]``: its nearest triangle at the last
     broad phase (-1: none). A visited node
@@ -318,9 +321,9 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
             last_hint[q] = hint
             if hint < 0:
                 if c_static[c]:
-                    node_clear[q] = _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0, g_origin[c],
-                                                      g_cell[c], g_dims[c], g_start_off[c], g_items_off[c], g_start,
-                                                      g_items, seen, -2 - q, pa, pb, pc)
+                    node_clear[q] = _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0,
+                                                      own_frame[c, :3], own_frame[c, 3], own_dims[c], own_off[c, 0],
+                                                      own_off[c, 1], own_start, own_items, seen, -2 - q, pa, pb, pc)
                     for d in range(3):
                         node_ref[q, d] = g[d]
                 continue
@@ -336,16 +339,16 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
             # the listed triangles: within radius of the node (a static surface: from the cells radius around it)
             n_list = 0
             if c_static[c]:
-                cell = g_cell[c]
+                cell = own_frame[c, 3]
                 for d in range(3):
-                    lo_cell[d] = max(int(np.floor((g[d] - radius - g_origin[c, d]) / cell)), 0)
-                    hi_cell[d] = min(int(np.floor((g[d] + radius - g_origin[c, d]) / cell)), g_dims[c, d] - 1)
+                    lo_cell[d] = max(int(np.floor((g[d] - radius - own_frame[c, d]) / cell)), 0)
+                    hi_cell[d] = min(int(np.floor((g[d] + radius - own_frame[c, d]) / cell)), own_dims[c, d] - 1)
                 for ci in range(lo_cell[0], hi_cell[0] + 1):
                     for cj in range(lo_cell[1], hi_cell[1] + 1):
                         for ck in range(lo_cell[2], hi_cell[2] + 1):
-                            cell_id = g_start_off[c] + (ci * g_dims[c, 1] + cj) * g_dims[c, 2] + ck
-                            for s in range(g_start[cell_id], g_start[cell_id + 1]):
-                                t = t0 + g_items[g_items_off[c] + s]
+                            cell_id = own_off[c, 0] + (ci * own_dims[c, 1] + cj) * own_dims[c, 2] + ck
+                            for s in range(own_start[cell_id], own_start[cell_id + 1]):
+                                t = t0 + own_items[own_off[c, 1] + s]
                                 if seen[t] == q:
                                     continue
                                 seen[t] = q

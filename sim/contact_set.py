@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit
 
 from sim.contact_broad import broad_phase, cell_clearance, feature_normals, load_triangle, nearest_triangle
-from sim.contact_mesh import closest_with_distance2
+from sim.contact_mesh import GRID_CELLS, build_grid, closest_with_distance2
 from sim.wrench import add_wrench
 
 
@@ -224,6 +224,19 @@ def friction_entries(x, x_prev, w, n_nodes, entry_node, entry_contact, tri_v, c_
         load[5] -= sign * (rx * jy - ry * jx)
 
 
+def own_box_grid(lo, hi, reach):
+    """A grid of a static surface's triangles by their own boxes (``lo``, ``hi`` grown by ``reach``, shrunk again
+    as the box tests do), cells their mean largest side (at most ``GRID_CELLS`` along the longest extent):
+    ``(origin, cell, dims, start, items)``. The triangles within a distance r of a point are among those of the cells
+    r around it; each triangle lies in a few cells, where the grid of the grown boxes repeats it in tens (it answers
+    which triangles' grown box holds a point: one cell)."""
+    own_lo, own_hi = lo + reach, hi - reach
+    extent = float((own_hi.max(axis=0) - own_lo.min(axis=0)).max())
+    cell = max(float((own_hi - own_lo).max(axis=1).mean()), extent / GRID_CELLS, 1e-9)
+    origin, dims, start, items = build_grid(own_lo, own_hi, cell)
+    return origin, cell, dims, start, items
+
+
 class ContactSet:
     """The model's surface contacts (``sim.contact_bodies.SurfaceContactState`` each: a static surface's normals,
     boxes and grid are built there once) as flat arrays over all their triangles; :meth:`begin` at every substep's
@@ -241,7 +254,9 @@ class ContactSet:
         tri_v, tri_adj, tri_lv, lv_faces, face_n, edge_n, corner_n, lo, hi = [], [], [], [], [], [], [], [], []
         g_origin, g_cell, g_dims, g_start, g_items, g_start_off, g_items_off = [], [], [], [], [], [], []
         g_clear = []
+        o_frame, o_dims, o_off, o_start, o_items = [], [], [], [], []  # the grids of the triangles' own boxes
         tri_start, static_start, lv_count, start_off, items_off = [0], n_nodes, 0, 0, 0
+        own_start_off, own_items_off = 0, 0
         for c in contacts:
             k, t0 = c.faces.shape[0], tri_start[-1]
             tri_adj.append(np.where(c.adjacent >= 0, c.adjacent + t0, -1))
@@ -257,6 +272,10 @@ class ContactSet:
                 g_clear.append(cell_clearance(c.origin, c.cell, c.dims, c.lo, c.hi, c.reach) * (1.0 - 1e-9))
                 g_start_off.append(start_off), g_items_off.append(items_off)
                 start_off, items_off = start_off + c.start.size, items_off + c.items.size
+                origin, cell, dims, start, items = own_box_grid(c.lo, c.hi, c.reach)
+                o_frame.append([*origin, cell]), o_dims.append(dims), o_off.append([own_start_off, own_items_off])
+                o_start.append(start), o_items.append(items)
+                own_start_off, own_items_off = own_start_off + start.size, own_items_off + items.size
             else:
                 tri_v.append(c.vmap[c.faces])
                 tri_lv.append(c.faces + lv_count)
@@ -271,6 +290,8 @@ class ContactSet:
                     name.append(np.zeros(shape))
                 g_origin.append(np.zeros(3)), g_cell.append(1.0), g_dims.append(np.zeros(3, np.int64))
                 g_start_off.append(start_off), g_items_off.append(items_off)
+                o_frame.append([0.0, 0.0, 0.0, 1.0]), o_dims.append(np.zeros(3, np.int64))
+                o_off.append([own_start_off, own_items_off])
             tri_start.append(t0 + k)
         cat = lambda parts, shape, dtype=np.float64: (  # noqa: E731
             np.ascontiguousarray(np.concatenate(parts), dtype=dtype) if parts else np.zeros(shape, dtype))
@@ -286,6 +307,10 @@ class ContactSet:
         self.g_start, self.g_items = cat(g_start, (0,), np.int64), cat(g_items, (0,), np.int64)
         self.g_clearance = cat(g_clear, (0,))
         self.g_start_off, self.g_items_off = cat([g_start_off], (0,), np.int64), cat([g_items_off], (0,), np.int64)
+        self.own_frame = np.array(o_frame, dtype=np.float64).reshape(-1, 4)
+        self.own_dims = np.array(o_dims, dtype=np.int64).reshape(-1, 3)
+        self.own_off = np.array(o_off, dtype=np.int64).reshape(-1, 2)
+        self.own_start, self.own_items = cat(o_start, (0,), np.int64), cat(o_items, (0,), np.int64)
         self.c_tri_start = np.array(tri_start, dtype=np.int64)
         self.nodes = cat([c.spec.nodes for c in contacts], (0,), np.int64)
         self.c_node_start = np.concatenate([[0], np.cumsum([c.spec.nodes.size for c in contacts])]).astype(np.int64)
@@ -322,8 +347,9 @@ class ContactSet:
              self.entry_second) = broad_phase(
                 x, self.static_x, self.n_nodes, self.c_static, self.c_reach, self.c_motion, self.c_node_start,
                 self.nodes, self.c_tri_start, self.tri_v, self.g_origin, self.g_cell, self.g_dims, self.g_start_off,
-                self.g_items_off, self.g_start, self.g_items, self.g_clearance, self.node_ref, self.node_clear,
-                self.last_hint, self.face_n, self.lo, self.hi)
+                self.g_items_off, self.g_start, self.g_items, self.g_clearance, self.own_frame, self.own_dims,
+                self.own_off, self.own_start, self.own_items, self.node_ref, self.node_clear, self.last_hint,
+                self.face_n, self.lo, self.hi)
         e = self.entry_node.size
         self.lam_n, self.tri = np.zeros(e), np.zeros(e, dtype=np.int64)
         self.bary, self.normal = np.zeros((e, 3)), np.zeros((e, 3))
