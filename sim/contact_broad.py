@@ -38,21 +38,22 @@ def _face_normal_and_box(x, static_x, n_nodes, tri_v, t, reach, face_n, lo, hi):
 
 @njit(cache=True)
 def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, first, cand, c0, c1, a, b, c,
-                     runner_up=False):
+                     runner_up=0.0):
     """The nearest triangle within ``reach`` of point g over ``first`` (-1: none) then ``cand[c0:c1]``, skipping a
     triangle whose box (the grown box shrunk by ``reach``) or plane is farther than the best so far: ``(t, feature,
     b0, b1, b2, second2)``, t = -1 for none (``sim.contact_mesh.project_nodes``' search); ``a``, ``b``, ``c``: (3,)
-    scratch. With ``runner_up``, ``second2`` is the squared distance to the nearest triangle other than t (at most
-    ``reach**2``; a triangle as near as t makes it t's): the skipping then compares with it, which leaves t the same;
-    without, ``second2`` is ``reach**2``."""
+    scratch. With ``runner_up`` > 0 [m], ``second2`` bounds from below the squared distance to the nearest triangle
+    other than t: it is that distance when under t's plus ``runner_up`` (and ``reach``), else at least that (a
+    triangle as near as t makes it t's); the skipping then compares with it, which leaves t the same. Without,
+    ``second2`` is ``reach**2``."""
     best, best_t, best_f = reach * reach, -1, 0
     second = reach * reach
+    bound = second  # what a triangle farther than is skipped: the best, or the runner-up's cap
     b0 = b1 = b2 = 0.0
     for s in range(c0 - (1 if first >= 0 else 0), c1):
         t = cand[s] if s >= c0 else first
         if face_n[t, 0] == 0.0 and face_n[t, 1] == 0.0 and face_n[t, 2] == 0.0:
             continue
-        bound = second if runner_up else best
         box2 = 0.0
         for d in range(3):
             r = max(lo[t, d] + reach - g[d], g[d] - (hi[t, d] - reach), 0.0)
@@ -76,12 +77,13 @@ def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, firs
             continue
         # the nearest as without the runner-up: a triangle the best's box or plane test skips cannot become it
         if d2 <= best and box2 <= best and plane2 <= best * (1.0 + 1e-9) * normal2:
-            if runner_up:
+            if runner_up > 0.0:
                 second = best
             best, best_t, best_f, b0, b1, b2 = d2, t, feature, e0, e1, e2
-        elif runner_up and d2 < second:
+        elif runner_up > 0.0 and d2 < second:
             second = d2
-    return best_t, best_f, b0, b1, b2, second
+        bound = min(second, (np.sqrt(best) + runner_up) ** 2) if runner_up > 0.0 else best
+    return best_t, best_f, b0, b1, b2, min(second, bound) if runner_up > 0.0 else second
 
 
 @njit(cache=True)
@@ -157,6 +159,20 @@ def _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0, origin,
 
 
 @njit(cache=True)
+def _listed_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, cand, c0, c1, limit, a, b, c):
+    """The distance from g to the nearest of ``cand[c0:c1]``, at most ``limit`` (the distance beyond which the
+    others lie), a little under it (rounding): :func:`_static_clearance` over a node's superset."""
+    best = limit * limit
+    for s in range(c0, c1):
+        t = cand[s]
+        if _box_gap(g, lo, hi, t, reach) ** 2 > best:
+            continue
+        load_triangle(x, static_x, n_nodes, tri_v, t, a, b, c)
+        best = min(best, closest_with_distance2(g, a, b, c)[0])
+    return np.sqrt(best) * (1.0 - 1e-9)
+
+
+@njit(cache=True)
 def feature_normals(x, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edge_n, corner_n):
     """Triangle t's edge normals (its and its neighbour's face normals summed) and angle-weighted vertex normals at
     its corners (over the faces around each, ascending: the sums of ``sim.contact_mesh.pseudonormals``, the same
@@ -189,9 +205,43 @@ def feature_normals(x, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edg
 
 
 @njit(cache=True)
+def _gather_own(g, radius, reach, t0, lo, hi, frame, dims, start_off, items_off, own_start, own_items, seen, stamp,
+                out, n0):
+    """Appends to ``out`` from ``n0`` the triangles (``t0`` + local id) of a static surface whose own box is within
+    ``radius`` of g, from the cells of its own-box grid (``sim.contact_set.own_box_grid``: origin ``frame[:3]``, cell
+    ``frame[3]``, ``dims``) radius around it, each once (``seen[t] == stamp``), ascending: ``(out, n)``."""
+    lo_cell, hi_cell = np.empty(3, np.int64), np.empty(3, np.int64)
+    cell = frame[3]
+    for d in range(3):
+        lo_cell[d] = max(int(np.floor((g[d] - radius - frame[d]) / cell)), 0)
+        hi_cell[d] = min(int(np.floor((g[d] + radius - frame[d]) / cell)), dims[d] - 1)
+    n = n0
+    for ci in range(lo_cell[0], hi_cell[0] + 1):
+        for cj in range(lo_cell[1], hi_cell[1] + 1):
+            for ck in range(lo_cell[2], hi_cell[2] + 1):
+                cell_id = start_off + (ci * dims[1] + cj) * dims[2] + ck
+                for s in range(own_start[cell_id], own_start[cell_id + 1]):
+                    t = t0 + own_items[items_off + s]
+                    if seen[t] == stamp:
+                        continue
+                    seen[t] = stamp
+                    r0 = max(lo[t, 0] + reach - g[0], g[0] - (hi[t, 0] - reach), 0.0)
+                    r1 = max(lo[t, 1] + reach - g[1], g[1] - (hi[t, 1] - reach), 0.0)
+                    r2 = max(lo[t, 2] + reach - g[2], g[2] - (hi[t, 2] - reach), 0.0)
+                    if np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) <= radius:  # _box_gap, written out
+                        if n == out.size:
+                            out = _grown(out)
+                        out[n] = t
+                        n += 1
+    out[n0:n].sort()
+    return out, n
+
+
+@njit(cache=True)
 def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start, nodes, c_tri_start, tri_v, g_origin,
                 g_cell, g_dims, g_start_off, g_items_off, g_start, g_items, g_clearance, own_frame, own_dims, own_off,
-                own_start, own_items, node_ref, node_clear,
+                own_start, own_items, c_skin, sup_ref, sup_len, sup_items, c_closed, tri_border, node_ref,
+                node_clear,
                 last_hint, face_n, lo, hi):
     """The substep's visited nodes (module docstring) of every contact c (its tested ``nodes[c_node_start[c]:
     c_node_start[c + 1]]``, its triangles ``c_tri_start[c]:c_tri_start[c + 1]``). Updates a body surface's
@@ -208,14 +258,17 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
     (at most ``reach + 2 c_motion[c]``; a body surface's from a grid of the triangles near the tested nodes)
     (with every point moved less than ``c_motion`` since, the nearest then is among them: the node and the hint's
     points each moved less than that). Returns ``(entry_node, entry_contact, entry_hint, entry_start, candidates,
-    entry_second)``: per visited node its contact, hint, candidate triangles ``candidates[entry_start[e]:entry_start[e +
-    1]]`` and its distance to the nearest triangle other than the hint (at most ``reach``; ``nearest_triangle``'s
-    runner-up over the triangles whose grown box holds it, which include every listed one within ``reach``)."""
+    entry_second, entry_closed)``: per visited node its contact, hint, candidate triangles
+    ``candidates[entry_start[e]:entry_start[e + 1]]``, a lower bound of its distance to the nearest triangle other
+    than the hint (at most ``reach``; ``nearest_triangle``'s runner-up over the triangles whose grown box holds it,
+    which include every listed one within ``reach``) and whether the surface is closed around it (``c_closed[c]``, or
+    neither the hint nor a listed triangle is ``tri_border``)."""
     n_contacts = c_reach.size
     entry_node = np.empty(nodes.size, np.int64)
     entry_contact = np.empty(nodes.size, np.int64)
     entry_hint = np.empty(nodes.size, np.int64)
     entry_second = np.empty(nodes.size)
+    entry_closed = np.empty(nodes.size, np.bool_)
     entry_start = np.zeros(nodes.size + 1, np.int64)
     cand = np.empty(256, np.int64)
     near = np.empty(256, np.int64)  # a static surface's triangles in a node's grid cells, or a body's near its nodes
@@ -279,6 +332,7 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                     continue
             # the triangles whose grown box holds the node (a static surface: its grid cell's), ascending
             n_near = 0
+            far2 = 0.0  # a static surface's: the node's squared distance from where its superset was built
             if c_static[c]:
                 cell = g_cell[c]
                 cx = int(np.floor((g[0] - g_origin[c, 0]) / cell))
@@ -289,11 +343,32 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                 cell_id = g_start_off[c] + (cx * g_dims[c, 1] + cy) * g_dims[c, 2] + cz
                 if g_clearance[cell_id] > reach:  # no triangle within reach of any point of the cell
                     continue
-                for s in range(g_start[cell_id], g_start[cell_id + 1]):
-                    if n_cand + n_near == cand.size:
+                # the node's superset: the triangles within reach + 2 c_motion + skin of where it was built, kept
+                # while the node is within skin of there (all within reach + 2 c_motion of it are in it)
+                for d in range(3):
+                    far2 += (g[d] - sup_ref[q, d]) ** 2
+                if sup_len[q] < 0 or far2 > c_skin[c] * c_skin[c]:
+                    cand, n_end = _gather_own(g, reach + 2.0 * c_motion[c] + c_skin[c], reach, t0, lo, hi,
+                                              own_frame[c], own_dims[c], own_off[c, 0], own_off[c, 1], own_start,
+                                              own_items, seen, -2 - nodes.size - q, cand, n_cand)
+                    sup_len[q] = n_end - n_cand if n_end - n_cand <= sup_items.shape[1] else -1
+                    for s in range(n_cand, n_end if sup_len[q] >= 0 else n_cand):
+                        sup_items[q, s - n_cand] = cand[s]
+                    for d in range(3):
+                        sup_ref[q, d] = g[d]
+                    far2 = 0.0
+                if sup_len[q] >= 0:  # the superset holds every triangle within reach: the hint's search over it
+                    while n_cand + sup_len[q] > cand.size:
                         cand = _grown(cand)
-                    cand[n_cand + n_near] = t0 + g_items[g_items_off[c] + s]
-                    n_near += 1
+                    for s in range(sup_len[q]):
+                        cand[n_cand + s] = sup_items[q, s]
+                    n_near = sup_len[q]
+                else:  # too many for its row: the grid cell's, as the grown boxes give them
+                    for s in range(g_start[cell_id], g_start[cell_id + 1]):
+                        if n_cand + n_near == cand.size:
+                            cand = _grown(cand)
+                        cand[n_cand + n_near] = t0 + g_items[g_items_off[c] + s]
+                        n_near += 1
             else:
                 cell = reach + grow
                 cx = int(np.floor((g[0] - sub_origin[0]) / cell))
@@ -316,14 +391,22 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
             # the node's nearest triangle of the last substep first: the box test then drops most of the others (the
             # result is the same: the last in ascending order among the nearest)
             first = last_hint[q] if last_hint[q] >= 0 else -1
+            # the runner-up matters up to the hint's distance plus what the node and the surface can move in the
+            # sweeps without a search of all triangles (c_motion each), with room to spare
             hint, f, b0, b1, b2, second2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach,
-                                                            first, cand, n_cand, n_cand + n_near, pa, pb, pc, True)
+                                                            first, cand, n_cand, n_cand + n_near, pa, pb, pc,
+                                                            4.0 * c_motion[c])
             last_hint[q] = hint
             if hint < 0:
-                if c_static[c]:
+                if c_static[c] and sup_len[q] >= 0:  # every triangle off the superset is this far at least
+                    limit = min(2.0 * reach, reach + 2.0 * c_motion[c] + c_skin[c] - np.sqrt(far2))
+                    node_clear[q] = _listed_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, cand, n_cand,
+                                                      n_cand + n_near, limit, pa, pb, pc)
+                elif c_static[c]:
                     node_clear[q] = _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0,
                                                       own_frame[c, :3], own_frame[c, 3], own_dims[c], own_off[c, 0],
                                                       own_off[c, 1], own_start, own_items, seen, -2 - q, pa, pb, pc)
+                if c_static[c]:
                     for d in range(3):
                         node_ref[q, d] = g[d]
                 continue
@@ -339,28 +422,19 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
             # the listed triangles: within radius of the node (a static surface: from the cells radius around it)
             n_list = 0
             if c_static[c]:
-                cell = own_frame[c, 3]
-                for d in range(3):
-                    lo_cell[d] = max(int(np.floor((g[d] - radius - own_frame[c, d]) / cell)), 0)
-                    hi_cell[d] = min(int(np.floor((g[d] + radius - own_frame[c, d]) / cell)), own_dims[c, d] - 1)
-                for ci in range(lo_cell[0], hi_cell[0] + 1):
-                    for cj in range(lo_cell[1], hi_cell[1] + 1):
-                        for ck in range(lo_cell[2], hi_cell[2] + 1):
-                            cell_id = own_off[c, 0] + (ci * own_dims[c, 1] + cj) * own_dims[c, 2] + ck
-                            for s in range(own_start[cell_id], own_start[cell_id + 1]):
-                                t = t0 + own_items[own_off[c, 1] + s]
-                                if seen[t] == q:
-                                    continue
-                                seen[t] = q
-                                r0 = max(lo[t, 0] + reach - g[0], g[0] - (hi[t, 0] - reach), 0.0)
-                                r1 = max(lo[t, 1] + reach - g[1], g[1] - (hi[t, 1] - reach), 0.0)
-                                r2 = max(lo[t, 2] + reach - g[2], g[2] - (hi[t, 2] - reach), 0.0)
-                                if np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) <= radius:  # _box_gap, inline
-                                    if n_cand + n_list == cand.size:
-                                        cand = _grown(cand)
-                                    cand[n_cand + n_list] = t
-                                    n_list += 1
-                cand[n_cand:n_cand + n_list].sort()
+                if sup_len[q] >= 0:  # the superset's (ascending) within radius, in place
+                    for s in range(n_cand, n_cand + n_near):
+                        t = cand[s]
+                        r0 = max(lo[t, 0] + reach - g[0], g[0] - (hi[t, 0] - reach), 0.0)
+                        r1 = max(lo[t, 1] + reach - g[1], g[1] - (hi[t, 1] - reach), 0.0)
+                        r2 = max(lo[t, 2] + reach - g[2], g[2] - (hi[t, 2] - reach), 0.0)
+                        if np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) <= radius:  # _box_gap, written out
+                            cand[n_cand + n_list] = t
+                            n_list += 1
+                else:
+                    cand, n_end = _gather_own(g, radius, reach, t0, lo, hi, own_frame[c], own_dims[c], own_off[c, 0],
+                                              own_off[c, 1], own_start, own_items, seen, q, cand, n_cand)
+                    n_list = n_end - n_cand
             else:
                 for s in range(pool0, pool1):
                     t = near[sub_items[s]]
@@ -371,8 +445,13 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                         n_list += 1
             entry_node[n_entries], entry_contact[n_entries], entry_hint[n_entries] = i, c, hint
             entry_second[n_entries] = np.sqrt(second2)
+            interior = not tri_border[hint]
+            for s in range(n_cand, n_cand + n_list):
+                interior = interior and not tri_border[cand[s]]
+            entry_closed[n_entries] = c_closed[c] or interior
             n_cand += n_list
             n_entries += 1
             entry_start[n_entries] = n_cand
     return (entry_node[:n_entries].copy(), entry_contact[:n_entries].copy(), entry_hint[:n_entries].copy(),
-            entry_start[:n_entries + 1].copy(), cand[:n_cand].copy(), entry_second[:n_entries].copy())
+            entry_start[:n_entries + 1].copy(), cand[:n_cand].copy(), entry_second[:n_entries].copy(),
+            entry_closed[:n_entries].copy())

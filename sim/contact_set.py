@@ -58,8 +58,8 @@ def _keep_clearance(e, g, distance, x, x_start, n_nodes, tri_v, hint, candidates
 @njit(cache=True)
 def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact, entry_hint, entry_start, candidates,
                     entry_second, all_triangles, c_tri_start, tri_v, tri_adj, tri_lv, lv_start, lv_face, normals_at,
-                    substep, face_n, edge_n, corner_n, lo, hi, c_reach, c_motion, c_closed, clear_x, clear_d, clear_m,
-                    c_sign, c_pair, lam_n, contact_tri, contact_bary, contact_n, loads):
+                    substep, face_n, edge_n, corner_n, lo, hi, c_reach, c_motion, entry_closed, clear_x, clear_d,
+                    clear_m, c_sign, c_pair, lam_n, contact_tri, contact_bary, contact_n, loads):
     """One Gauss-Seidel pass of the contact constraint over the visited nodes (``sim.contact_mesh.project_nodes``'
     update: both sides moved by their inverse masses); per entry the summed normal impulse, the triangle,
     barycentrics and normal of its last correction; ``c_sign[c]`` times the impulse and its moment about the origin
@@ -67,10 +67,11 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
     since the broad phase (``x_start``), else all of its contact's triangles (``all_triangles``: 0, 1, ...). Returns
     the number of corrections. A body surface's edge and vertex normals are computed for a triangle when it is
     first nearest to a node in the substep (``normals_at[t]``: the last ``substep`` they were). A node found outside a
-    closed surface (``c_closed``) at distance ``clear_d[e]`` at ``clear_x[e]`` (its listed vertices then moved
-    ``clear_m[e]`` since the broad phase) stays outside while its motion since and its listed vertices' cannot close
-    that distance (it would have to cross the surface): it is not searched (the same result: an outside node is left
-    alone). ``clear_d[e] = 0``: no such bound."""
+    surface closed around it (``entry_closed[e]``: a closed surface, or no listed triangle at a border of an open one,
+    where the pseudonormal test's sign is the side) at distance ``clear_d[e]`` at ``clear_x[e]`` (its listed vertices
+    then moved ``clear_m[e]`` since the broad phase) stays outside while its motion since and its listed vertices'
+    cannot close that distance (it would have to cross the surface): it is not searched (the same result: an outside
+    node is left alone). ``clear_d[e] = 0``: no such bound."""
     moved = 0
     g, pa, pb, pc = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     for e in range(entry_node.size):
@@ -80,9 +81,9 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         motion2 = (g[0] - x_start[i, 0]) ** 2 + (g[1] - x_start[i, 1]) ** 2 + (g[2] - x_start[i, 2]) ** 2
         listed = motion2 < c_motion[c] * c_motion[c]
         if listed:
-            if clear_d[e] > 0.0:
-                surface = _listed_motion(x, x_start, n_nodes, tri_v, entry_hint[e], candidates, entry_start[e],
-                                         entry_start[e + 1])
+            if clear_d[e] > 0.0:  # a static surface does not move
+                surface = 0.0 if tri_v[entry_hint[e], 0] >= n_nodes else _listed_motion(
+                    x, x_start, n_nodes, tri_v, entry_hint[e], candidates, entry_start[e], entry_start[e + 1])
                 node = np.sqrt((g[0] - clear_x[e, 0]) ** 2 + (g[1] - clear_x[e, 1]) ** 2 + (g[2] - clear_x[e, 2]) ** 2)
                 if node + surface + clear_m[e] < clear_d[e]:
                     continue
@@ -112,7 +113,7 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
                                                    pa, pb, pc)
         clear_d[e] = 0.0
         if t < 0:
-            if listed and c_closed[c]:  # no listed triangle within reach
+            if listed and entry_closed[e]:  # no listed triangle within reach
                 _keep_clearance(e, g, c_reach[c], x, x_start, n_nodes, tri_v, entry_hint[e], candidates,
                                 entry_start[e], entry_start[e + 1], clear_x, clear_d, clear_m)
             continue
@@ -132,7 +133,7 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         else:
             Nx, Ny, Nz = face_n[t, 0], face_n[t, 1], face_n[t, 2]
         if dx * Nx + dy * Ny + dz * Nz >= 0.0:
-            if listed and c_closed[c]:
+            if listed and entry_closed[e]:
                 _keep_clearance(e, g, np.sqrt(dx * dx + dy * dy + dz * dz), x, x_start, n_nodes, tri_v, entry_hint[e],
                                 candidates, entry_start[e], entry_start[e + 1], clear_x, clear_d, clear_m)
             continue
@@ -224,6 +225,15 @@ def friction_entries(x, x_prev, w, n_nodes, entry_node, entry_contact, tri_v, c_
         load[5] -= sign * (rx * jy - ry * jx)
 
 
+def border_triangles(faces, adjacent):
+    """Per triangle whether a corner lies on a border edge (an edge with no neighbour: ``adjacent`` -1)."""
+    k = np.nonzero(adjacent < 0)
+    on_border = np.zeros(int(faces.max()) + 1 if faces.size else 0, np.bool_)
+    on_border[faces[k[0], k[1]]] = True
+    on_border[faces[k[0], (k[1] + 1) % 3]] = True
+    return on_border[faces].any(axis=1)
+
+
 def own_box_grid(lo, hi, reach):
     """A grid of a static surface's triangles by their own boxes (``lo``, ``hi`` grown by ``reach``, shrunk again
     as the box tests do), cells their mean largest side (at most ``GRID_CELLS`` along the longest extent):
@@ -244,6 +254,8 @@ class ContactSet:
     visited nodes' ``active``, ``lam_n``, ``tri``, ``bary``, ``normal`` for the substep."""
 
     motion_fraction = 0.125
+    skin_fraction = 0.5  # of reach: how far a node moves before its superset is built again
+    superset_size = 48  # triangles at most in a node's superset (more: its lists from the grids, as without)
 
     def __init__(self, contacts: list, n_nodes: int):
         self.contacts = contacts
@@ -321,11 +333,23 @@ class ContactSet:
         self.c_mu = np.array([c.spec.friction for c in contacts], dtype=np.float64)
         # a node outside a closed surface cannot get in without crossing it (a body's boundary, a closed static mesh)
         self.c_closed = np.array([not c.static or bool((c.adjacent >= 0).all()) for c in contacts], dtype=np.bool_)
+        # an open static surface's triangles at its border (a corner on a border edge): elsewhere it is closed
+        # around a node whose listed triangles are none of these (the pseudonormal test's sign is the side there)
+        self.tri_border = np.zeros(self.tri_v.shape[0], np.bool_)
+        for c, t0 in zip(contacts, self.c_tri_start[:-1]):
+            if c.static:
+                self.tri_border[t0:t0 + c.faces.shape[0]] = border_triangles(c.faces, c.adjacent)
         # a node moved this far within the sweeps searches all its contact's triangles, else its list (broad_phase):
         # an eighth of reach, above what one substep's corrections usually move a node
         self.c_motion = self.motion_fraction * self.c_reach
         self.all_triangles = np.arange(self.tri_v.shape[0], dtype=np.int64)
         self.x_start = np.zeros((n_nodes, 3))
+        # per tested node of a static surface its superset of triangles (broad_phase), rebuilt when it has moved
+        # c_skin from where it was built
+        self.c_skin = self.skin_fraction * self.c_reach
+        self.sup_ref = np.zeros((self.nodes.size, 3))
+        self.sup_len = np.full(self.nodes.size, -1, np.int64)
+        self.sup_items = np.zeros((self.nodes.size, self.superset_size), np.int64)
         self.node_ref, self.node_clear = np.zeros((self.nodes.size, 3)), np.zeros(self.nodes.size)
         self.last_hint = np.full(self.nodes.size, -1, np.int64)
         self.normals_at = np.full(self.tri_v.shape[0], -1, np.int64)  # feature normals: the substep they are of
@@ -338,17 +362,18 @@ class ContactSet:
         if x is None or not self.contacts:
             empty = np.zeros(0, np.int64)
             self.entry_node, self.entry_contact, self.entry_hint, self.candidates = empty, empty, empty, empty
-            self.entry_second = np.zeros(0)
+            self.entry_second, self.entry_closed = np.zeros(0), np.zeros(0, np.bool_)
             self.entry_start = np.zeros(1, np.int64)
         else:
             self.x_start[:] = x
             self.substep += 1
             (self.entry_node, self.entry_contact, self.entry_hint, self.entry_start, self.candidates,
-             self.entry_second) = broad_phase(
+             self.entry_second, self.entry_closed) = broad_phase(
                 x, self.static_x, self.n_nodes, self.c_static, self.c_reach, self.c_motion, self.c_node_start,
                 self.nodes, self.c_tri_start, self.tri_v, self.g_origin, self.g_cell, self.g_dims, self.g_start_off,
                 self.g_items_off, self.g_start, self.g_items, self.g_clearance, self.own_frame, self.own_dims,
-                self.own_off, self.own_start, self.own_items, self.node_ref, self.node_clear, self.last_hint,
+                self.own_off, self.own_start, self.own_items, self.c_skin, self.sup_ref, self.sup_len,
+                self.sup_items, self.c_closed, self.tri_border, self.node_ref, self.node_clear, self.last_hint,
                 self.face_n, self.lo, self.hi)
         e = self.entry_node.size
         self.lam_n, self.tri = np.zeros(e), np.zeros(e, dtype=np.int64)
@@ -365,9 +390,9 @@ class ContactSet:
         return (self.x_start, self.static_x, self.n_nodes, self.entry_node, self.entry_contact, self.entry_hint,
                 self.entry_start, self.candidates, self.entry_second, self.all_triangles, self.c_tri_start,
                 self.tri_v, self.tri_adj, self.tri_lv, self.lv_start, self.lv_face, self.normals_at, self.substep,
-                self.face_n, self.edge_n, self.corner_n, self.lo, self.hi, self.c_reach, self.c_motion, self.c_closed,
-                self.clear_x, self.clear_d, self.clear_m, self.c_sign, self.c_pair, self.lam_n, self.tri, self.bary,
-                self.normal)
+                self.face_n, self.edge_n, self.corner_n, self.lo, self.hi, self.c_reach, self.c_motion,
+                self.entry_closed, self.clear_x, self.clear_d, self.clear_m, self.c_sign, self.c_pair, self.lam_n,
+                self.tri, self.bary, self.normal)
 
     def project(self, x: np.ndarray, w: np.ndarray, loads: np.ndarray) -> int:
         """One pass over the visited nodes; adds the impulses to ``loads`` (pairs, 6) (:func:`project_entries`)."""

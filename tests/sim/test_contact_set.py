@@ -96,8 +96,8 @@ def test_a_block_settling_on_a_static_sheet_steps_bit_for_bit_as_full_searches()
 
 
 def test_the_runner_up_is_the_second_nearest_triangle_capped_at_reach():
-    """``nearest_triangle(..., runner_up=True)``: the same nearest triangle as without, and the squared distance to
-    the nearest other triangle (brute force) or reach**2 when none is nearer; a point on a shared edge or vertex has
+    """``nearest_triangle(..., runner_up=1.0)`` (a cap far beyond the sheet): the same nearest triangle as without,
+    and the squared distance to the nearest other triangle (brute force) or reach**2 when none is nearer; a point on a shared edge or vertex has
     its runner-up as near as its nearest."""
     points, faces = _sheet(n=6)
     state = SurfaceContactState(SurfaceContact(np.zeros(0), faces, points, reach=0.03), np.zeros((0, 3)))
@@ -112,7 +112,7 @@ def test_the_runner_up_is_the_second_nearest_triangle_capped_at_reach():
         d2 = np.array([np.sum((g - sum(b * points[f[j]] for j, b in enumerate(closest_on_triangle(g, *points[f])[:3])))
                               ** 2) for f in faces])
         t, f, b0, b1, b2, second2 = nearest_triangle(g, np.zeros((0, 3)), cs.static_x, 0, cs.tri_v, cs.face_n, cs.lo,
-                                                     cs.hi, reach, -1, everything, 0, everything.size, *scratch, True)
+                                                     cs.hi, reach, -1, everything, 0, everything.size, *scratch, 1.0)
         plain = nearest_triangle(g, np.zeros((0, 3)), cs.static_x, 0, cs.tri_v, cs.face_n, cs.lo, cs.hi, reach, -1,
                                  everything, 0, everything.size, *scratch)
         assert plain[:5] == (t, f, b0, b1, b2) and plain[5] == reach * reach
@@ -153,3 +153,17 @@ def test_a_static_surface_clearance_is_its_distance_capped_at_two_reach():
         assert expected * (1.0 - 1e-9) - 1e-14 <= clear <= expected * (1.0 - 1e-9) + 1e-14
         checked += brute < 2.0 * state.reach
     assert checked > 50  # most points near enough for a true distance, not the cap
+
+
+def test_border_triangles_are_those_with_a_corner_on_an_open_edge():
+    """An open 6 x 6 sheet: the 18 triangles of its inner 3 x 3 cells have no corner on its rim, all others do; a
+    closed box surface has none."""
+    from sim.contact_mesh import face_adjacency
+    from sim.contact_set import border_triangles
+    from sim.mesh.surface import boundary_faces
+    points, faces = _sheet(n=6)
+    border = border_triangles(faces, face_adjacency(faces))
+    rim = (np.abs(points[:, :2]) > 0.119).any(axis=1)
+    assert np.array_equal(border, rim[faces].any(axis=1)) and np.count_nonzero(~border) == 18
+    box = boundary_faces(procedural.box((0.1, 0.1, 0.1), (2, 2, 2)).tets)
+    assert not border_triangles(box, face_adjacency(box)).any()
