@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.contact_mesh import build_grid, closest_with_distance2, corner_angle, unit_face_normal
+from sim.contact_mesh import build_grid, closest_with_distance2, corner_angle
 
 
 @njit(cache=True)
@@ -25,15 +25,21 @@ def load_triangle(x, static_x, n_nodes, tri_v, t, a, b, c):
 
 
 @njit(cache=True)
-def _face_normal_and_box(x, static_x, n_nodes, tri_v, t, reach, face_n, lo, hi):
-    """Unit normal and box grown by ``reach`` of triangle t (``sim.contact_mesh.pseudonormals`` and
-    ``triangle_boxes``, the same arithmetic)."""
-    a, b, c = tri_v[t, 0], tri_v[t, 1], tri_v[t, 2]
-    face_n[t, 0], face_n[t, 1], face_n[t, 2] = unit_face_normal(x, a, b, c)
-    for d in range(3):
-        pa, pb, pc = x[a, d], x[b, d], x[c, d]
-        lo[t, d] = min(pa, pb, pc) - reach
-        hi[t, d] = max(pa, pb, pc) + reach
+def _face_normals_and_boxes(x, tri_v, t0, t1, reach, face_n, lo, hi):
+    """Unit normals and boxes grown by ``reach`` of a body surface's triangles ``t0:t1`` (``sim.contact_mesh``'s
+    ``unit_face_normal`` and ``triangle_boxes``, the same arithmetic, written out: one call per surface)."""
+    for t in range(t0, t1):
+        a, b, c = tri_v[t, 0], tri_v[t, 1], tri_v[t, 2]
+        e1x, e1y, e1z = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
+        e2x, e2y, e2z = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        scale = 1.0 / length if length > 0.0 else 0.0
+        face_n[t, 0], face_n[t, 1], face_n[t, 2] = nx * scale, ny * scale, nz * scale
+        for d in range(3):
+            pa, pb, pc = x[a, d], x[b, d], x[c, d]
+            lo[t, d] = min(pa, pb, pc) - reach
+            hi[t, d] = max(pa, pb, pc) + reach
 
 
 @njit(cache=True)
@@ -283,8 +289,7 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
         if q0 == q1:
             continue
         if not c_static[c]:
-            for t in range(t0, t1):
-                _face_normal_and_box(x, static_x, n_nodes, tri_v, t, reach, face_n, lo, hi)
+            _face_normals_and_boxes(x, tri_v, t0, t1, reach, face_n, lo, hi)
         # only nodes in the surface's grown box can be within reach of it, and only triangles whose grown box
         # overlaps those nodes' box
         surface_lo, surface_hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -438,7 +443,10 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
             else:
                 for s in range(pool0, pool1):
                     t = near[sub_items[s]]
-                    if _box_gap(g, lo, hi, t, reach) <= radius:
+                    r0 = max(lo[t, 0] + reach - g[0], g[0] - (hi[t, 0] - reach), 0.0)
+                    r1 = max(lo[t, 1] + reach - g[1], g[1] - (hi[t, 1] - reach), 0.0)
+                    r2 = max(lo[t, 2] + reach - g[2], g[2] - (hi[t, 2] - reach), 0.0)
+                    if np.sqrt(r0 * r0 + r1 * r1 + r2 * r2) <= radius:  # _box_gap, written out
                         if n_cand + n_list == cand.size:
                             cand = _grown(cand)
                         cand[n_cand + n_list] = t
