@@ -33,33 +33,20 @@ from sim.wrench import add_wrench
 
 
 @njit(cache=True)
-def _listed_motion(x, x_start, n_nodes, tri_v, hint, candidates, c0, c1):
-    """The largest displacement since the broad phase of a vertex of the hint or of the listed triangles."""
+def _most_moved(x, x_start, nodes):
+    """The largest displacement of ``nodes`` since the broad phase."""
     most = 0.0
-    for s in range(c0 - 1, c1):
-        t = candidates[s] if s >= c0 else hint
-        for k in range(3):
-            v = tri_v[t, k]
-            if v < n_nodes:
-                most = max(most, (x[v, 0] - x_start[v, 0]) ** 2 + (x[v, 1] - x_start[v, 1]) ** 2
-                           + (x[v, 2] - x_start[v, 2]) ** 2)
+    for v in nodes:
+        most = max(most, (x[v, 0] - x_start[v, 0]) ** 2 + (x[v, 1] - x_start[v, 1]) ** 2
+                   + (x[v, 2] - x_start[v, 2]) ** 2)
     return np.sqrt(most)
 
 
 @njit(cache=True)
-def _keep_clearance(e, g, distance, x, x_start, n_nodes, tri_v, hint, candidates, c0, c1, clear_x, clear_d, clear_m):
-    """Entry e's node at g is outside at ``distance`` (a little less: rounding) from its listed triangles."""
-    clear_d[e] = distance * (1.0 - 1e-9)
-    clear_m[e] = _listed_motion(x, x_start, n_nodes, tri_v, hint, candidates, c0, c1)
-    for d in range(3):
-        clear_x[e, d] = g[d]
-
-
-@njit(cache=True)
 def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact, entry_hint, entry_start, candidates,
-                    entry_second, all_triangles, c_tri_start, tri_v, tri_adj, tri_lv, lv_start, lv_face, normals_at,
-                    substep, face_n, edge_n, corner_n, lo, hi, c_reach, c_motion, entry_closed, clear_x, clear_d,
-                    clear_m, c_sign, c_pair, lam_n, contact_tri, contact_bary, contact_n, loads):
+                    entry_second, surface_nodes, all_triangles, c_tri_start, tri_v, tri_adj, tri_lv, lv_start, lv_face,
+                    normals_at, substep, face_n, edge_n, corner_n, lo, hi, c_reach, c_motion, entry_closed, clear_x,
+                    clear_d, clear_m, c_sign, c_pair, lam_n, contact_tri, contact_bary, contact_n, loads):
     """One Gauss-Seidel pass of the contact constraint over the visited nodes (``sim.contact_mesh.project_nodes``'
     update: both sides moved by their inverse masses); per entry the summed normal impulse, the triangle,
     barycentrics and normal of its last correction; ``c_sign[c]`` times the impulse and its moment about the origin
@@ -74,6 +61,9 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
     node is left alone). ``clear_d[e] = 0``: no such bound."""
     moved = 0
     g, pa, pb, pc = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    # the largest motion since the broad phase of a body surface's vertex (of ``surface_nodes``), a bound of any
+    # listed vertices' (-1: not found yet); raised by every correction of this pass
+    surface = -1.0
     for e in range(entry_node.size):
         i, c = entry_node[e], entry_contact[e]
         for d in range(3):
@@ -81,11 +71,13 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         motion2 = (g[0] - x_start[i, 0]) ** 2 + (g[1] - x_start[i, 1]) ** 2 + (g[2] - x_start[i, 2]) ** 2
         listed = motion2 < c_motion[c] * c_motion[c]
         if listed:
-            if clear_d[e] > 0.0:  # a static surface does not move
-                surface = 0.0 if tri_v[entry_hint[e], 0] >= n_nodes else _listed_motion(
-                    x, x_start, n_nodes, tri_v, entry_hint[e], candidates, entry_start[e], entry_start[e + 1])
+            static = tri_v[entry_hint[e], 0] >= n_nodes  # a static surface does not move
+            if not static and surface < 0.0:
+                surface = _most_moved(x, x_start, surface_nodes)
+            moved_surface = 0.0 if static else surface
+            if clear_d[e] > 0.0:
                 node = np.sqrt((g[0] - clear_x[e, 0]) ** 2 + (g[1] - clear_x[e, 1]) ** 2 + (g[2] - clear_x[e, 2]) ** 2)
-                if node + surface + clear_m[e] < clear_d[e]:
+                if node + moved_surface + clear_m[e] < clear_d[e]:
                     continue
             # the hint is still the nearest listed triangle within reach, without searching the list, when its
             # distance now plus the node's motion and the listed vertices' since the broad phase is under
@@ -99,9 +91,7 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
                 load_triangle(x, static_x, n_nodes, tri_v, h, pa, pb, pc)
                 d2, e0, e1, e2, feature = closest_with_distance2(g, pa, pb, pc)
                 if d2 < reach * reach * (1.0 - 1e-6):
-                    surface = 0.0 if tri_v[h, 0] >= n_nodes else _listed_motion(
-                        x, x_start, n_nodes, tri_v, h, candidates, entry_start[e], entry_start[e + 1])
-                    if np.sqrt(d2) + np.sqrt(motion2) + surface + 1e-9 * reach < entry_second[e]:
+                    if np.sqrt(d2) + np.sqrt(motion2) + moved_surface + 1e-9 * reach < entry_second[e]:
                         t, f, b0, b1, b2 = h, feature, e0, e1, e2
             if t < 0:
                 t, f, b0, b1, b2, _ = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
@@ -114,8 +104,8 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         clear_d[e] = 0.0
         if t < 0:
             if listed and entry_closed[e]:  # no listed triangle within reach
-                _keep_clearance(e, g, c_reach[c], x, x_start, n_nodes, tri_v, entry_hint[e], candidates,
-                                entry_start[e], entry_start[e + 1], clear_x, clear_d, clear_m)
+                clear_d[e], clear_m[e] = c_reach[c] * (1.0 - 1e-9), moved_surface
+                clear_x[e, 0], clear_x[e, 1], clear_x[e, 2] = g[0], g[1], g[2]
             continue
         va, vb, vc = tri_v[t, 0], tri_v[t, 1], tri_v[t, 2]
         if va < n_nodes and normals_at[t] != substep:  # a body surface's, at the broad phase's positions
@@ -133,9 +123,9 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         else:
             Nx, Ny, Nz = face_n[t, 0], face_n[t, 1], face_n[t, 2]
         if dx * Nx + dy * Ny + dz * Nz >= 0.0:
-            if listed and entry_closed[e]:
-                _keep_clearance(e, g, np.sqrt(dx * dx + dy * dy + dz * dz), x, x_start, n_nodes, tri_v, entry_hint[e],
-                                candidates, entry_start[e], entry_start[e + 1], clear_x, clear_d, clear_m)
+            if listed and entry_closed[e]:  # outside at that distance (a little less: rounding)
+                clear_d[e], clear_m[e] = np.sqrt(dx * dx + dy * dy + dz * dz) * (1.0 - 1e-9), moved_surface
+                clear_x[e, 0], clear_x[e, 1], clear_x[e, 2] = g[0], g[1], g[2]
             continue
         dist = np.sqrt(dx * dx + dy * dy + dz * dz)
         if dist > 1e-300:  # n: from the node to the surface point (outward)
@@ -166,6 +156,11 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         rx, ry, rz = x[i, 0], x[i, 1], x[i, 2]
         add_wrench(load, sign, jx, jy, jz, rx, ry, rz)
         moved += 1
+        if surface >= 0.0:  # the bound stays one: the corrected node and triangle corners moved
+            for v in (i, va, vb, vc):
+                if v < n_nodes:
+                    surface = max(surface, np.sqrt((x[v, 0] - x_start[v, 0]) ** 2 + (x[v, 1] - x_start[v, 1]) ** 2
+                                                   + (x[v, 2] - x_start[v, 2]) ** 2))
     return moved
 
 
@@ -343,6 +338,8 @@ class ContactSet:
         # an eighth of reach, above what one substep's corrections usually move a node
         self.c_motion = self.motion_fraction * self.c_reach
         self.all_triangles = np.arange(self.tri_v.shape[0], dtype=np.int64)
+        # the body surfaces' vertices (model nodes): what a listed triangle's corners can be
+        self.surface_nodes = cat([np.unique(c.vmap) for c in contacts if not c.static], (0,), np.int64)
         self.x_start = np.zeros((n_nodes, 3))
         # per tested node of a static surface its superset of triangles (broad_phase), rebuilt when it has moved
         # c_skin from where it was built
@@ -388,7 +385,8 @@ class ContactSet:
     def arrays(self) -> tuple:
         """The narrow phase's arguments after ``x, w`` (:func:`project_entries`, up to ``loads``)."""
         return (self.x_start, self.static_x, self.n_nodes, self.entry_node, self.entry_contact, self.entry_hint,
-                self.entry_start, self.candidates, self.entry_second, self.all_triangles, self.c_tri_start,
+                self.entry_start, self.candidates, self.entry_second, self.surface_nodes, self.all_triangles,
+                self.c_tri_start,
                 self.tri_v, self.tri_adj, self.tri_lv, self.lv_start, self.lv_face, self.normals_at, self.substep,
                 self.face_n, self.edge_n, self.corner_n, self.lo, self.hi, self.c_reach, self.c_motion,
                 self.entry_closed, self.clear_x, self.clear_d, self.clear_m, self.c_sign, self.c_pair, self.lam_n,
