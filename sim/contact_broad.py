@@ -246,9 +246,9 @@ def _gather_own(g, radius, reach, t0, lo, hi, frame, dims, start_off, items_off,
 @njit(cache=True)
 def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start, nodes, c_tri_start, tri_v, g_origin,
                 g_cell, g_dims, g_start_off, g_items_off, g_start, g_items, g_clearance, own_frame, own_dims, own_off,
-                own_start, own_items, c_skin, sup_ref, sup_len, sup_items, c_closed, tri_border, node_ref,
-                node_clear,
-                last_hint, face_n, lo, hi):
+                own_start, own_items, c_skin, sup_ref, sup_len, sup_items, c_closed, tri_border, c_slack, c_drift,
+                keep_ref, keep_drift, keep_second, keep_radius, keep_len, keep_items, keep_closed, node_ref,
+                node_clear, node_drift, last_hint, face_n, lo, hi):
     """The substep's visited nodes (module docstring) of every contact c (its tested ``nodes[c_node_start[c]:
     c_node_start[c + 1]]``, its triangles ``c_tri_start[c]:c_tri_start[c + 1]``). Updates a body surface's
     ``face_n``, ``lo``, ``hi`` (all its triangles; edge and corner normals: :func:`feature_normals`, on demand). A
@@ -303,18 +303,18 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                 nodes_lo[d] = min(nodes_lo[d], max(x[nodes[q], d], surface_lo[d]))
                 nodes_hi[d] = max(nodes_hi[d], min(x[nodes[q], d], surface_hi[d]))
         n_body = 0
-        if not c_static[c]:
+        grow = 2.0 * c_motion[c]
+        if not c_static[c]:  # (boxes grown by grow too: the triangles left out are beyond reach + grow of every node)
             for t in range(t0, t1):
                 overlaps = True
                 for d in range(3):
-                    overlaps = overlaps and lo[t, d] <= nodes_hi[d] and hi[t, d] >= nodes_lo[d]
+                    overlaps = overlaps and lo[t, d] - grow <= nodes_hi[d] and hi[t, d] + grow >= nodes_lo[d]
                 if overlaps:
                     near = _append(near, n_body, t)
                     n_body += 1
         if not c_static[c] and n_body == 0:
             continue
         if not c_static[c]:  # a grid of those, their boxes grown by reach + 2 c_motion (the largest list radius)
-            grow = 2.0 * c_motion[c]
             sub_lo, sub_hi = np.empty((n_body, 3)), np.empty((n_body, 3))
             for s in range(n_body):
                 for d in range(3):
@@ -329,11 +329,42 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                 outside = outside or g[d] < surface_lo[d] or g[d] > surface_hi[d]
             if outside:
                 continue
-            if c_static[c]:
-                moved2 = 0.0
-                for d in range(3):
-                    moved2 += (g[d] - node_ref[q, d]) ** 2
-                if node_clear[q] > reach and np.sqrt(moved2) < node_clear[q] - reach:
+            moved2 = 0.0
+            for d in range(3):
+                moved2 += (g[d] - node_ref[q, d]) ** 2
+            if node_clear[q] > reach and np.sqrt(moved2) + (c_drift[c] - node_drift[q]) < node_clear[q] - reach:
+                continue
+            # the last substep's hint, runner-up bound and list kept (keep_*: at keep_ref, the surface's drift then
+            # keep_drift) when they still hold: the hint nearer than any other triangle by the node's and the
+            # surface's motion since (the search would find it), the list's radius covering the one needed now
+            if last_hint[q] >= 0 and keep_len[q] >= 0:
+                h = last_hint[q]
+                moved = np.sqrt((g[0] - keep_ref[q, 0]) ** 2 + (g[1] - keep_ref[q, 1]) ** 2
+                                + (g[2] - keep_ref[q, 2]) ** 2) + (c_drift[c] - keep_drift[q])
+                load_triangle(x, static_x, n_nodes, tri_v, h, pa, pb, pc)
+                d2 = closest_with_distance2(g, pa, pb, pc)[0]
+                margin = 1e-9 * reach
+                degenerate = face_n[h, 0] == 0.0 and face_n[h, 1] == 0.0 and face_n[h, 2] == 0.0
+                radius = min(np.sqrt(d2) + 4.0 * c_motion[c], reach + 2.0 * c_motion[c])
+                if not degenerate and d2 < reach * reach * (1.0 - 1e-6) and radius + moved + margin <= keep_radius[q]:
+                    node_clear[q] = 0.0
+                    while n_cand + keep_len[q] > cand.size:
+                        cand = _grown(cand)
+                    for s in range(keep_len[q]):
+                        cand[n_cand + s] = keep_items[q, s]
+                    second = keep_second[q] - moved
+                    if not np.sqrt(d2) + moved + margin < keep_second[q]:  # a tie, or nearer: search the list
+                        # (it holds every triangle as near as the hint); mostly a node on an edge or corner, where
+                        # the sweeps could not keep the hint either: no runner-up (0: none known)
+                        h = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, h, cand, n_cand,
+                                             n_cand + keep_len[q], pa, pb, pc)[0]
+                        last_hint[q], second = h, 0.0
+                    entry_node[n_entries], entry_contact[n_entries], entry_hint[n_entries] = i, c, h
+                    entry_second[n_entries] = second
+                    entry_closed[n_entries] = keep_closed[q]
+                    n_cand += keep_len[q]
+                    n_entries += 1
+                    entry_start[n_entries] = n_cand
                     continue
             # the triangles whose grown box holds the node (a static surface: its grid cell's), ascending
             n_near = 0
@@ -411,19 +442,28 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                     node_clear[q] = _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0,
                                                       own_frame[c, :3], own_frame[c, 3], own_dims[c], own_off[c, 0],
                                                       own_off[c, 1], own_start, own_items, seen, -2 - q, pa, pb, pc)
-                if c_static[c]:
-                    for d in range(3):
-                        node_ref[q, d] = g[d]
+                else:  # a body surface: its pool holds every triangle within reach + grow of the node
+                    n_pool = pool1 - pool0
+                    while n_cand + n_near + n_pool > cand.size:
+                        cand = _grown(cand)
+                    for s in range(n_pool):
+                        cand[n_cand + n_near + s] = near[sub_items[pool0 + s]]
+                    node_clear[q] = _listed_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, cand,
+                                                      n_cand + n_near, n_cand + n_near + n_pool,
+                                                      min(2.0 * reach, reach + grow), pa, pb, pc)
+                for d in range(3):
+                    node_ref[q, d] = g[d]
+                node_drift[q] = c_drift[c]
                 continue
-            if c_static[c]:
-                node_clear[q] = 0.0
+            node_clear[q] = 0.0
             load_triangle(x, static_x, n_nodes, tri_v, hint, pa, pb, pc)
             d0 = 0.0
             for d in range(3):
                 r = g[d] - (b0 * pa[d] + b1 * pb[d] + b2 * pc[d])
                 d0 += r * r
             # a triangle within reach of the node during the sweeps is within reach + 2 c_motion of it now
-            radius = min(np.sqrt(d0) + 4.0 * c_motion[c], reach + 2.0 * c_motion[c])
+            # listed with room for the node and the surface to move a little before the list is built again
+            radius = min(np.sqrt(d0) + 4.0 * c_motion[c] + c_slack[c], reach + 2.0 * c_motion[c])
             # the listed triangles: within radius of the node (a static surface: from the cells radius around it)
             n_list = 0
             if c_static[c]:
@@ -457,6 +497,13 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
             for s in range(n_cand, n_cand + n_list):
                 interior = interior and not tri_border[cand[s]]
             entry_closed[n_entries] = c_closed[c] or interior
+            keep_len[q] = n_list if n_list <= keep_items.shape[1] else -1
+            for s in range(n_list if keep_len[q] >= 0 else 0):
+                keep_items[q, s] = cand[n_cand + s]
+            for d in range(3):
+                keep_ref[q, d] = g[d]
+            keep_drift[q], keep_second[q], keep_radius[q] = c_drift[c], np.sqrt(second2), radius
+            keep_closed[q] = entry_closed[n_entries]
             n_cand += n_list
             n_entries += 1
             entry_start[n_entries] = n_cand

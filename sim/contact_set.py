@@ -250,7 +250,8 @@ class ContactSet:
 
     motion_fraction = 0.125
     skin_fraction = 0.5  # of reach: how far a node moves before its superset is built again
-    superset_size = 48  # triangles at most in a node's superset (more: its lists from the grids, as without)
+    superset_size = 48  # triangles at most in a node's superset or kept list (more: from the grids, as without)
+    slack_fraction = 0.5  # of c_motion: the room a list is built with, so that it can be kept
 
     def __init__(self, contacts: list, n_nodes: int):
         self.contacts = contacts
@@ -347,7 +348,20 @@ class ContactSet:
         self.sup_ref = np.zeros((self.nodes.size, 3))
         self.sup_len = np.full(self.nodes.size, -1, np.int64)
         self.sup_items = np.zeros((self.nodes.size, self.superset_size), np.int64)
+        # per tested node its last list, hint's runner-up bound, where (keep_ref) and at which drift of the surface
+        # they were found (broad_phase keeps them while they hold); c_drift: per contact the sum over substeps of its
+        # surface vertices' largest displacement between broad phases (0 for a static surface), a bound of any
+        # vertex's motion between two of them
+        self.c_slack = self.slack_fraction * self.c_motion
+        self.c_drift = np.zeros(len(contacts))
+        self.keep_ref, self.keep_drift = np.zeros((self.nodes.size, 3)), np.zeros(self.nodes.size)
+        self.keep_second, self.keep_radius = np.zeros(self.nodes.size), np.zeros(self.nodes.size)
+        self.keep_len = np.full(self.nodes.size, -1, np.int64)
+        self.keep_items = np.zeros((self.nodes.size, self.superset_size), np.int64)
+        self.keep_closed = np.zeros(self.nodes.size, np.bool_)
+        self.c_vertices = [np.unique(c.vmap) if not c.static else None for c in contacts]
         self.node_ref, self.node_clear = np.zeros((self.nodes.size, 3)), np.zeros(self.nodes.size)
+        self.node_drift = np.zeros(self.nodes.size)  # the surface's drift (c_drift) when node_clear was found
         self.last_hint = np.full(self.nodes.size, -1, np.int64)
         self.normals_at = np.full(self.tri_v.shape[0], -1, np.int64)  # feature normals: the substep they are of
         self.substep = 0
@@ -362,6 +376,9 @@ class ContactSet:
             self.entry_second, self.entry_closed = np.zeros(0), np.zeros(0, np.bool_)
             self.entry_start = np.zeros(1, np.int64)
         else:
+            for k, vertices in enumerate(self.c_vertices):  # x_start: the last broad phase's positions
+                if vertices is not None and self.substep:  # (nothing is kept before the first)
+                    self.c_drift[k] += _most_moved(x, self.x_start, vertices)
             self.x_start[:] = x
             self.substep += 1
             (self.entry_node, self.entry_contact, self.entry_hint, self.entry_start, self.candidates,
@@ -370,7 +387,9 @@ class ContactSet:
                 self.nodes, self.c_tri_start, self.tri_v, self.g_origin, self.g_cell, self.g_dims, self.g_start_off,
                 self.g_items_off, self.g_start, self.g_items, self.g_clearance, self.own_frame, self.own_dims,
                 self.own_off, self.own_start, self.own_items, self.c_skin, self.sup_ref, self.sup_len,
-                self.sup_items, self.c_closed, self.tri_border, self.node_ref, self.node_clear, self.last_hint,
+                self.sup_items, self.c_closed, self.tri_border, self.c_slack, self.c_drift, self.keep_ref,
+                self.keep_drift, self.keep_second, self.keep_radius, self.keep_len, self.keep_items, self.keep_closed,
+                self.node_ref, self.node_clear, self.node_drift, self.last_hint,
                 self.face_n, self.lo, self.hi)
         e = self.entry_node.size
         self.lam_n, self.tri = np.zeros(e), np.zeros(e, dtype=np.int64)

@@ -167,3 +167,42 @@ def test_border_triangles_are_those_with_a_corner_on_an_open_edge():
     assert np.array_equal(border, rim[faces].any(axis=1)) and np.count_nonzero(~border) == 18
     box = boundary_faces(procedural.box((0.1, 0.1, 0.1), (2, 2, 2)).tets)
     assert not border_triangles(box, face_adjacency(box)).any()
+
+
+def _triangle_distances(g, corners):
+    return np.array([np.linalg.norm(g - sum(b * tri[j] for j, b in enumerate(closest_on_triangle(g, *tri)[:3])))
+                     for tri in corners])
+
+
+def test_every_node_within_reach_is_visited_with_its_nearest_triangle_as_hint():
+    """The broad phase keeps lists, hints and clearances across substeps (``sim.contact_broad``): at the last
+    substep of each of 12 steps of the stack (blocks pressing each other, the tool pushing and dragging) and of a block
+    on the folded sheet, every tested node within reach of its contact's surface (brute force over all its triangles)
+    is visited, with a hint as near as the nearest triangle, and no visited node is farther than reach."""
+    points, faces = _sheet()
+    mesh = procedural.box((0.08, 0.06, 0.03), (4, 3, 2), origin=(-0.04, -0.03, 0.012))
+    block = Model.from_mesh(mesh, E=2e4, nu=0.3, density=1000.0, gravity=np.array([0.0, 0.0, -9.81]))
+    add_static_contact(block, np.arange(block.n_nodes), points, faces, friction=0.3, pair=0, reach=0.02)
+    checked = 0
+    for model in (_stack(), block):
+        integrator = make_integrator("xpbd", model, {"substeps": 5, "iterations": 5, "damping": 5.0})
+        cs, state = integrator.contact_set, State.at_rest(model)
+        for _ in range(12):
+            state = integrator.step(state, 0.02)
+            x = cs.x_start  # the positions of the last broad phase
+            corners = np.concatenate([x, cs.static_x])[cs.tri_v]
+            for c in range(len(cs.contacts)):
+                tris = corners[cs.c_tri_start[c]:cs.c_tri_start[c + 1]]
+                visited = cs.entry_contact == c
+                hints = dict(zip(cs.entry_node[visited], cs.entry_hint[visited]))
+                for i in cs.nodes[cs.c_node_start[c]:cs.c_node_start[c + 1]]:
+                    d = _triangle_distances(x[i], tris)
+                    reach = cs.c_reach[c]
+                    if d.min() < reach * (1.0 - 1e-9):
+                        assert i in hints
+                        hinted = d[hints[i] - cs.c_tri_start[c]]
+                        assert hinted <= d.min() + 1e-12  # the nearest (or one as near), to rounding
+                        checked += 1
+                    elif i in hints:
+                        assert d.min() <= reach * (1.0 + 1e-9)
+    assert checked > 200
