@@ -247,8 +247,8 @@ def _gather_own(g, radius, reach, t0, lo, hi, frame, dims, start_off, items_off,
 def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start, nodes, c_tri_start, tri_v, g_origin,
                 g_cell, g_dims, g_start_off, g_items_off, g_start, g_items, g_clearance, own_frame, own_dims, own_off,
                 own_start, own_items, c_skin, sup_ref, sup_len, sup_items, c_closed, tri_border, c_slack, c_drift,
-                keep_ref, keep_drift, keep_second, keep_radius, keep_len, keep_items, keep_closed, node_ref,
-                node_clear, node_drift, last_hint, face_n, lo, hi):
+                keep_ref, keep_drift, keep_cref, keep_cdrift, keep_second, keep_radius, keep_len, keep_items,
+                keep_closed, node_ref, node_clear, node_drift, last_hint, face_n, lo, hi):
     """The substep's visited nodes (module docstring) of every contact c (its tested ``nodes[c_node_start[c]:
     c_node_start[c + 1]]``, its triangles ``c_tri_start[c]:c_tri_start[c + 1]``). Updates a body surface's
     ``face_n``, ``lo``, ``hi`` (all its triangles; edge and corner normals: :func:`feature_normals`, on demand). A
@@ -352,13 +352,19 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                         cand = _grown(cand)
                     for s in range(keep_len[q]):
                         cand[n_cand + s] = keep_items[q, s]
-                    second = keep_second[q] - moved
-                    if not np.sqrt(d2) + moved + margin < keep_second[q]:  # a tie, or nearer: search the list
-                        # (it holds every triangle as near as the hint); mostly a node on an edge or corner, where
-                        # the sweeps could not keep the hint either: no runner-up (0: none known)
-                        h = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, h, cand, n_cand,
-                                             n_cand + keep_len[q], pa, pb, pc)[0]
-                        last_hint[q], second = h, 0.0
+                    # the runner-up bound was found at keep_cref (the surface's drift then keep_cdrift)
+                    shift = np.sqrt((g[0] - keep_cref[q, 0]) ** 2 + (g[1] - keep_cref[q, 1]) ** 2
+                                    + (g[2] - keep_cref[q, 2]) ** 2) + (c_drift[c] - keep_cdrift[q])
+                    second = keep_second[q] - shift
+                    if not np.sqrt(d2) + shift + margin < keep_second[q]:  # a tie, or nearer: search the list
+                        # (it holds every triangle as near as the hint, and those beyond the runner-up's cap)
+                        h, f, b0, b1, b2, second2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi,
+                                                                     reach, h, cand, n_cand, n_cand + keep_len[q], pa,
+                                                                     pb, pc, 4.0 * c_motion[c])
+                        last_hint[q], second, keep_second[q] = h, np.sqrt(second2), np.sqrt(second2)
+                        for d in range(3):
+                            keep_cref[q, d] = g[d]
+                        keep_cdrift[q] = c_drift[c]
                     entry_node[n_entries], entry_contact[n_entries], entry_hint[n_entries] = i, c, h
                     entry_second[n_entries] = second
                     entry_closed[n_entries] = keep_closed[q]
@@ -501,8 +507,9 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
             for s in range(n_list if keep_len[q] >= 0 else 0):
                 keep_items[q, s] = cand[n_cand + s]
             for d in range(3):
-                keep_ref[q, d] = g[d]
-            keep_drift[q], keep_second[q], keep_radius[q] = c_drift[c], np.sqrt(second2), radius
+                keep_ref[q, d] = keep_cref[q, d] = g[d]
+            keep_drift[q] = keep_cdrift[q] = c_drift[c]
+            keep_second[q], keep_radius[q] = np.sqrt(second2), radius
             keep_closed[q] = entry_closed[n_entries]
             n_cand += n_list
             n_entries += 1

@@ -70,6 +70,7 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
             g[d] = x[i, d]
         motion2 = (g[0] - x_start[i, 0]) ** 2 + (g[1] - x_start[i, 1]) ** 2 + (g[2] - x_start[i, 2]) ** 2
         listed = motion2 < c_motion[c] * c_motion[c]
+        loaded = False  # pa, pb, pc hold the nearest triangle's corners
         if listed:
             static = tri_v[entry_hint[e], 0] >= n_nodes  # a static surface does not move
             if not static and surface < 0.0:
@@ -92,7 +93,7 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
                 d2, e0, e1, e2, feature = closest_with_distance2(g, pa, pb, pc)
                 if d2 < reach * reach * (1.0 - 1e-6):
                     if np.sqrt(d2) + np.sqrt(motion2) + moved_surface + 1e-9 * reach < entry_second[e]:
-                        t, f, b0, b1, b2 = h, feature, e0, e1, e2
+                        t, f, b0, b1, b2, loaded = h, feature, e0, e1, e2, True  # pa, pb, pc: its corners
             if t < 0:
                 t, f, b0, b1, b2, _ = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
                                                        entry_hint[e], candidates, entry_start[e], entry_start[e + 1],
@@ -111,7 +112,8 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         if va < n_nodes and normals_at[t] != substep:  # a body surface's, at the broad phase's positions
             feature_normals(x_start, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edge_n, corner_n)
             normals_at[t] = substep
-        load_triangle(x, static_x, n_nodes, tri_v, t, pa, pb, pc)
+        if not loaded:
+            load_triangle(x, static_x, n_nodes, tri_v, t, pa, pb, pc)
         qx = b0 * pa[0] + b1 * pb[0] + b2 * pc[0]
         qy = b0 * pa[1] + b1 * pb[1] + b2 * pc[1]
         qz = b0 * pa[2] + b1 * pb[2] + b2 * pc[2]
@@ -355,6 +357,7 @@ class ContactSet:
         self.c_slack = self.slack_fraction * self.c_motion
         self.c_drift = np.zeros(len(contacts))
         self.keep_ref, self.keep_drift = np.zeros((self.nodes.size, 3)), np.zeros(self.nodes.size)
+        self.keep_cref, self.keep_cdrift = np.zeros((self.nodes.size, 3)), np.zeros(self.nodes.size)  # keep_second's
         self.keep_second, self.keep_radius = np.zeros(self.nodes.size), np.zeros(self.nodes.size)
         self.keep_len = np.full(self.nodes.size, -1, np.int64)
         self.keep_items = np.zeros((self.nodes.size, self.superset_size), np.int64)
@@ -388,7 +391,8 @@ class ContactSet:
                 self.g_items_off, self.g_start, self.g_items, self.g_clearance, self.own_frame, self.own_dims,
                 self.own_off, self.own_start, self.own_items, self.c_skin, self.sup_ref, self.sup_len,
                 self.sup_items, self.c_closed, self.tri_border, self.c_slack, self.c_drift, self.keep_ref,
-                self.keep_drift, self.keep_second, self.keep_radius, self.keep_len, self.keep_items, self.keep_closed,
+                self.keep_drift, self.keep_cref, self.keep_cdrift, self.keep_second, self.keep_radius, self.keep_len,
+                self.keep_items, self.keep_closed,
                 self.node_ref, self.node_clear, self.node_drift, self.last_hint,
                 self.face_n, self.lo, self.hi)
         e = self.entry_node.size
