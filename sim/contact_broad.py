@@ -8,20 +8,20 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.contact_mesh import build_grid, closest_with_distance2, corner_angle
+from sim.contact_mesh import build_grid, closest_on_triangle_xyz, corner_angle
 
 
 @njit(cache=True)
-def load_triangle(x, static_x, n_nodes, tri_v, t, a, b, c):
-    """Triangle t's corners into the (3,) arrays a, b, c. One call per triangle, the loads inline: a helper taking
-    arrays costs far more per call than a load (docs/interaction.md, "The narrow phase's cost")."""
+def corners(x, static_x, n_nodes, tri_v, t):
+    """Triangle t's corners as nine coordinates ``ax, ay, az, bx, ..., cz`` (scalars, for
+    ``sim.contact_mesh.closest_on_triangle_xyz``: passing (3,) arrays between the helpers cost about four times the
+    searches' arithmetic; docs/interaction.md, "The narrow phase's cost")."""
     ia, ib, ic = tri_v[t, 0], tri_v[t, 1], tri_v[t, 2]
     if ia >= n_nodes:  # a static surface's triangle: all three corners are its points
-        for d in range(3):
-            a[d], b[d], c[d] = static_x[ia - n_nodes, d], static_x[ib - n_nodes, d], static_x[ic - n_nodes, d]
-    else:
-        for d in range(3):
-            a[d], b[d], c[d] = x[ia, d], x[ib, d], x[ic, d]
+        ia, ib, ic = ia - n_nodes, ib - n_nodes, ic - n_nodes
+        return (static_x[ia, 0], static_x[ia, 1], static_x[ia, 2], static_x[ib, 0], static_x[ib, 1], static_x[ib, 2],
+                static_x[ic, 0], static_x[ic, 1], static_x[ic, 2])
+    return x[ia, 0], x[ia, 1], x[ia, 2], x[ib, 0], x[ib, 1], x[ib, 2], x[ic, 0], x[ic, 1], x[ic, 2]
 
 
 @njit(cache=True)
@@ -43,12 +43,10 @@ def _face_normals_and_boxes(x, tri_v, t0, t1, reach, face_n, lo, hi):
 
 
 @njit(cache=True)
-def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, first, cand, c0, c1, a, b, c,
-                     runner_up=0.0):
+def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, first, cand, c0, c1, runner_up=0.0):
     """The nearest triangle within ``reach`` of point g over ``first`` (-1: none) then ``cand[c0:c1]``, skipping a
     triangle whose box (the grown box shrunk by ``reach``) or plane is farther than the best so far: ``(t, feature,
-    b0, b1, b2, second2)``, t = -1 for none (``sim.contact_mesh.project_nodes``' search); ``a``, ``b``, ``c``: (3,)
-    scratch. With ``runner_up`` > 0 [m], ``second2`` bounds from below the squared distance to the nearest triangle
+    b0, b1, b2, second2)``, t = -1 for none (``sim.contact_mesh.project_nodes``' search). With ``runner_up`` > 0 [m], ``second2`` bounds from below the squared distance to the nearest triangle
     other than t: it is that distance when under t's plus ``runner_up`` (and ``reach``), else at least that (a
     triangle as near as t makes it t's); the skipping then compares with it, which leaves t the same. Without,
     ``second2`` is ``reach**2``."""
@@ -56,29 +54,30 @@ def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, firs
     second = reach * reach
     bound = second  # what a triangle farther than is skipped: the best, or the runner-up's cap
     b0 = b1 = b2 = 0.0
+    gx, gy, gz = g[0], g[1], g[2]
     for s in range(c0 - (1 if first >= 0 else 0), c1):
         t = cand[s] if s >= c0 else first
         if face_n[t, 0] == 0.0 and face_n[t, 1] == 0.0 and face_n[t, 2] == 0.0:
             continue
-        box2 = 0.0
-        for d in range(3):
-            r = max(lo[t, d] + reach - g[d], g[d] - (hi[t, d] - reach), 0.0)
-            box2 += r * r
+        r0 = max(lo[t, 0] + reach - gx, gx - (hi[t, 0] - reach), 0.0)
+        r1 = max(lo[t, 1] + reach - gy, gy - (hi[t, 1] - reach), 0.0)
+        r2 = max(lo[t, 2] + reach - gz, gz - (hi[t, 2] - reach), 0.0)
+        box2 = r0 * r0 + r1 * r1 + r2 * r2
         if box2 > bound:
             continue
-        load_triangle(x, static_x, n_nodes, tri_v, t, a, b, c)
+        ax, ay, az, bx, by, bz, cx, cy, cz = corners(x, static_x, n_nodes, tri_v, t)
         # the distance to the triangle's plane bounds the distance to it from below (a node resting on a surface lies
         # in the boxes of most triangles around it, not near their planes); pruned only beyond rounding (1e-9
         # relative, far above the few ulps the two computations differ by), so ties are searched as before
-        nx = (b[1] - a[1]) * (c[2] - a[2]) - (b[2] - a[2]) * (c[1] - a[1])
-        ny = (b[2] - a[2]) * (c[0] - a[0]) - (b[0] - a[0]) * (c[2] - a[2])
-        nz = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
-        height = nx * (g[0] - a[0]) + ny * (g[1] - a[1]) + nz * (g[2] - a[2])
+        nx = (by - ay) * (cz - az) - (bz - az) * (cy - ay)
+        ny = (bz - az) * (cx - ax) - (bx - ax) * (cz - az)
+        nz = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+        height = nx * (gx - ax) + ny * (gy - ay) + nz * (gz - az)
         plane2 = height * height
         normal2 = nx * nx + ny * ny + nz * nz
         if plane2 > bound * (1.0 + 1e-9) * normal2:
             continue
-        d2, e0, e1, e2, feature = closest_with_distance2(g, a, b, c)
+        d2, e0, e1, e2, feature = closest_on_triangle_xyz(gx, gy, gz, ax, ay, az, bx, by, bz, cx, cy, cz)
         if t == best_t:  # the first triangle tried again in the list: the same distance
             continue
         # the nearest as without the runner-up: a triangle the best's box or plane test skips cannot become it
@@ -141,7 +140,7 @@ def cell_clearance(origin, cell, dims, lo, hi, reach):
 
 @njit(cache=True)
 def _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0, origin, cell, dims, start_off, items_off,
-                      g_start, g_items, seen, stamp, a, b, c):
+                      g_start, g_items, seen, stamp):
     """The distance from g to a static surface, at most ``2 reach`` (the triangles from the grid cells within that of
     g, skipped when their box is farther than the nearest so far), a little under it (rounding)."""
     limit = 2.0 * reach
@@ -159,13 +158,13 @@ def _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0, origin,
                     if seen[t] == stamp or _box_gap(g, lo, hi, t, reach) ** 2 > best:
                         continue
                     seen[t] = stamp
-                    load_triangle(x, static_x, n_nodes, tri_v, t, a, b, c)
-                    best = min(best, closest_with_distance2(g, a, b, c)[0])
+                    ax, ay, az, bx, by, bz, cx, cy, cz = corners(x, static_x, n_nodes, tri_v, t)
+                    best = min(best, closest_on_triangle_xyz(g[0], g[1], g[2], ax, ay, az, bx, by, bz, cx, cy, cz)[0])
     return np.sqrt(best) * (1.0 - 1e-9)
 
 
 @njit(cache=True)
-def _listed_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, cand, c0, c1, limit, a, b, c):
+def _listed_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, cand, c0, c1, limit):
     """The distance from g to the nearest of ``cand[c0:c1]``, at most ``limit`` (the distance beyond which the
     others lie), a little under it (rounding): :func:`_static_clearance` over a node's superset."""
     best = limit * limit
@@ -173,8 +172,8 @@ def _listed_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, cand, c0, c
         t = cand[s]
         if _box_gap(g, lo, hi, t, reach) ** 2 > best:
             continue
-        load_triangle(x, static_x, n_nodes, tri_v, t, a, b, c)
-        best = min(best, closest_with_distance2(g, a, b, c)[0])
+        ax, ay, az, bx, by, bz, cx, cy, cz = corners(x, static_x, n_nodes, tri_v, t)
+        best = min(best, closest_on_triangle_xyz(g[0], g[1], g[2], ax, ay, az, bx, by, bz, cx, cy, cz)[0])
     return np.sqrt(best) * (1.0 - 1e-9)
 
 
@@ -280,7 +279,7 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
     near = np.empty(256, np.int64)  # a static surface's triangles in a node's grid cells, or a body's near its nodes
     n_cand, n_entries = 0, 0
     seen = np.full(tri_v.shape[0], -1, np.int64)  # per triangle: the last node that gathered it
-    g, pa, pb, pc = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    g = np.empty(3)
     lo_cell, hi_cell = np.empty(3, np.int64), np.empty(3, np.int64)
     for c in range(n_contacts):
         t0, t1 = c_tri_start[c], c_tri_start[c + 1]
@@ -341,8 +340,8 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                 h = last_hint[q]
                 moved = np.sqrt((g[0] - keep_ref[q, 0]) ** 2 + (g[1] - keep_ref[q, 1]) ** 2
                                 + (g[2] - keep_ref[q, 2]) ** 2) + (c_drift[c] - keep_drift[q])
-                load_triangle(x, static_x, n_nodes, tri_v, h, pa, pb, pc)
-                d2 = closest_with_distance2(g, pa, pb, pc)[0]
+                ax, ay, az, bx, by, bz, cx, cy, cz = corners(x, static_x, n_nodes, tri_v, h)
+                d2 = closest_on_triangle_xyz(g[0], g[1], g[2], ax, ay, az, bx, by, bz, cx, cy, cz)[0]
                 margin = 1e-9 * reach
                 degenerate = face_n[h, 0] == 0.0 and face_n[h, 1] == 0.0 and face_n[h, 2] == 0.0
                 radius = min(np.sqrt(d2) + 4.0 * c_motion[c], reach + 2.0 * c_motion[c])
@@ -359,8 +358,8 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                     if not np.sqrt(d2) + shift + margin < keep_second[q]:  # a tie, or nearer: search the list
                         # (it holds every triangle as near as the hint, and those beyond the runner-up's cap)
                         h, f, b0, b1, b2, second2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi,
-                                                                     reach, h, cand, n_cand, n_cand + keep_len[q], pa,
-                                                                     pb, pc, 4.0 * c_motion[c])
+                                                                     reach, h, cand, n_cand, n_cand + keep_len[q],
+                                                                     4.0 * c_motion[c])
                         last_hint[q], second, keep_second[q] = h, np.sqrt(second2), np.sqrt(second2)
                         for d in range(3):
                             keep_cref[q, d] = g[d]
@@ -436,18 +435,17 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
             # the runner-up matters up to the hint's distance plus what the node and the surface can move in the
             # sweeps without a search of all triangles (c_motion each), with room to spare
             hint, f, b0, b1, b2, second2 = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach,
-                                                            first, cand, n_cand, n_cand + n_near, pa, pb, pc,
-                                                            4.0 * c_motion[c])
+                                                            first, cand, n_cand, n_cand + n_near, 4.0 * c_motion[c])
             last_hint[q] = hint
             if hint < 0:
                 if c_static[c] and sup_len[q] >= 0:  # every triangle off the superset is this far at least
                     limit = min(2.0 * reach, reach + 2.0 * c_motion[c] + c_skin[c] - np.sqrt(far2))
                     node_clear[q] = _listed_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, cand, n_cand,
-                                                      n_cand + n_near, limit, pa, pb, pc)
+                                                      n_cand + n_near, limit)
                 elif c_static[c]:
                     node_clear[q] = _static_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, t0,
                                                       own_frame[c, :3], own_frame[c, 3], own_dims[c], own_off[c, 0],
-                                                      own_off[c, 1], own_start, own_items, seen, -2 - q, pa, pb, pc)
+                                                      own_off[c, 1], own_start, own_items, seen, -2 - q)
                 else:  # a body surface: its pool holds every triangle within reach + grow of the node
                     n_pool = pool1 - pool0
                     while n_cand + n_near + n_pool > cand.size:
@@ -456,17 +454,17 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                         cand[n_cand + n_near + s] = near[sub_items[pool0 + s]]
                     node_clear[q] = _listed_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, cand,
                                                       n_cand + n_near, n_cand + n_near + n_pool,
-                                                      min(2.0 * reach, reach + grow), pa, pb, pc)
+                                                      min(2.0 * reach, reach + grow))
                 for d in range(3):
                     node_ref[q, d] = g[d]
                 node_drift[q] = c_drift[c]
                 continue
             node_clear[q] = 0.0
-            load_triangle(x, static_x, n_nodes, tri_v, hint, pa, pb, pc)
-            d0 = 0.0
-            for d in range(3):
-                r = g[d] - (b0 * pa[d] + b1 * pb[d] + b2 * pc[d])
-                d0 += r * r
+            ax, ay, az, bx, by, bz, cx, cy, cz = corners(x, static_x, n_nodes, tri_v, hint)
+            rx = g[0] - (b0 * ax + b1 * bx + b2 * cx)
+            ry = g[1] - (b0 * ay + b1 * by + b2 * cy)
+            rz = g[2] - (b0 * az + b1 * bz + b2 * cz)
+            d0 = rx * rx + ry * ry + rz * rz
             # a triangle within reach of the node during the sweeps is within reach + 2 c_motion of it now
             # listed with room for the node and the surface to move a little before the list is built again
             radius = min(np.sqrt(d0) + 4.0 * c_motion[c] + c_slack[c], reach + 2.0 * c_motion[c])

@@ -35,17 +35,16 @@ def _dot(ax, ay, az, bx, by, bz):
 
 
 @njit(cache=True)
-def closest_on_triangle(p, a, b, c):
-    """Closest point of triangle abc to p (Ericson 2005 §5.1.5), all (3,) arrays: ``(b0, b1, b2, feature)``, the
-    point's barycentrics and its feature: 0-2 the vertex k, 3-5 the edge from vertex k - 3 to the next, 6 the face.
-    Scalar arithmetic (no temporary arrays: it runs for every node and nearby triangle in every sweep)."""
-    abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
-    acx, acy, acz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
-    apx, apy, apz = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+def _closest_barycentrics(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Closest point of triangle abc to p (Ericson 2005 §5.1.5): ``(b0, b1, b2, feature)``, the point's barycentrics
+    and its feature: 0-2 the vertex k, 3-5 the edge from vertex k - 3 to the next, 6 the face."""
+    abx, aby, abz = bx - ax, by - ay, bz - az
+    acx, acy, acz = cx - ax, cy - ay, cz - az
+    apx, apy, apz = px - ax, py - ay, pz - az
     d1, d2 = _dot(abx, aby, abz, apx, apy, apz), _dot(acx, acy, acz, apx, apy, apz)
     if d1 <= 0.0 and d2 <= 0.0:
         return 1.0, 0.0, 0.0, 0
-    bpx, bpy, bpz = p[0] - b[0], p[1] - b[1], p[2] - b[2]
+    bpx, bpy, bpz = px - bx, py - by, pz - bz
     d3, d4 = _dot(abx, aby, abz, bpx, bpy, bpz), _dot(acx, acy, acz, bpx, bpy, bpz)
     if d3 >= 0.0 and d4 <= d3:
         return 0.0, 1.0, 0.0, 1
@@ -53,7 +52,7 @@ def closest_on_triangle(p, a, b, c):
     if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
         s = d1 / (d1 - d3)
         return 1.0 - s, s, 0.0, 3
-    cpx, cpy, cpz = p[0] - c[0], p[1] - c[1], p[2] - c[2]
+    cpx, cpy, cpz = px - cx, py - cy, pz - cz
     d5, d6 = _dot(abx, aby, abz, cpx, cpy, cpz), _dot(acx, acy, acz, cpx, cpy, cpz)
     if d6 >= 0.0 and d5 <= d6:
         return 0.0, 0.0, 1.0, 2
@@ -71,14 +70,28 @@ def closest_on_triangle(p, a, b, c):
 
 
 @njit(cache=True)
+def closest_on_triangle_xyz(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """The closest point of triangle abc to p from their coordinates: ``(d2, b0, b1, b2, feature)``, the squared
+    distance to it, its barycentrics and feature (:func:`_closest_barycentrics`). Scalars only: the contact searches
+    call it for every triangle they test, and a call passing arrays costs several times its arithmetic
+    (docs/interaction.md, "The narrow phase's cost")."""
+    b0, b1, b2, feature = _closest_barycentrics(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
+    rx = px - (b0 * ax + b1 * bx + b2 * cx)
+    ry = py - (b0 * ay + b1 * by + b2 * cy)
+    rz = pz - (b0 * az + b1 * bz + b2 * cz)
+    return rx * rx + ry * ry + rz * rz, b0, b1, b2, feature
+
+
+@njit(cache=True)
+def closest_on_triangle(p, a, b, c):
+    """:func:`closest_on_triangle_xyz`'s barycentrics and feature for (3,) arrays."""
+    return _closest_barycentrics(p[0], p[1], p[2], a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2])
+
+
+@njit(cache=True)
 def closest_with_distance2(p, a, b, c):
-    """:func:`closest_on_triangle`'s barycentrics and feature, with the squared distance from p to that point."""
-    b0, b1, b2, feature = closest_on_triangle(p, a, b, c)
-    d2 = 0.0
-    for d in range(3):
-        r = p[d] - (b0 * a[d] + b1 * b[d] + b2 * c[d])
-        d2 += r * r
-    return d2, b0, b1, b2, feature
+    """:func:`closest_on_triangle_xyz` for (3,) arrays."""
+    return closest_on_triangle_xyz(p[0], p[1], p[2], a[0], a[1], a[2], b[0], b[1], b[2], c[0], c[1], c[2])
 
 
 @njit(cache=True)
@@ -202,7 +215,6 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
     per substep), a mesh tool this grid search."""
     moved = 0
     g = np.empty(3)
-    a, b, c = np.empty(3), np.empty(3), np.empty(3)
     for q in range(nodes.shape[0]):
         i = nodes[q]
         for d in range(3):
@@ -226,11 +238,10 @@ def project_nodes(x, w, nodes, xv, vmap, wv, shift, faces, face_n, edge_n, vert_
                 box2 += r * r
             if box2 > best or face_n[t, 0] == 0.0 and face_n[t, 1] == 0.0 and face_n[t, 2] == 0.0:
                 continue
-            for d in range(3):  # in the surface's frame
-                a[d] = xv[vmap[faces[t, 0]], d]
-                b[d] = xv[vmap[faces[t, 1]], d]
-                c[d] = xv[vmap[faces[t, 2]], d]
-            d2, c0, c1, c2, feature = closest_with_distance2(g, a, b, c)
+            va, vb, vc = vmap[faces[t, 0]], vmap[faces[t, 1]], vmap[faces[t, 2]]  # in the surface's frame
+            d2, c0, c1, c2, feature = closest_on_triangle_xyz(g[0], g[1], g[2], xv[va, 0], xv[va, 1], xv[va, 2],
+                                                              xv[vb, 0], xv[vb, 1], xv[vb, 2], xv[vc, 0], xv[vc, 1],
+                                                              xv[vc, 2])
             if d2 <= best:
                 best, best_t, best_f, b0, b1, b2 = d2, t, feature, c0, c1, c2
         if best_t < 0:

@@ -27,8 +27,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.contact_broad import broad_phase, cell_clearance, feature_normals, load_triangle, nearest_triangle
-from sim.contact_mesh import GRID_CELLS, build_grid, closest_with_distance2
+from sim.contact_broad import broad_phase, cell_clearance, corners, feature_normals, nearest_triangle
+from sim.contact_mesh import GRID_CELLS, build_grid, closest_on_triangle_xyz
 from sim.wrench import add_wrench
 
 
@@ -60,7 +60,7 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
     cannot close that distance (it would have to cross the surface): it is not searched (the same result: an outside
     node is left alone). ``clear_d[e] = 0``: no such bound."""
     moved = 0
-    g, pa, pb, pc = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    g = np.empty(3)
     # the largest motion since the broad phase of a body surface's vertex (of ``surface_nodes``), a bound of any
     # listed vertices' (-1: not found yet); raised by every correction of this pass
     surface = -1.0
@@ -70,7 +70,6 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
             g[d] = x[i, d]
         motion2 = (g[0] - x_start[i, 0]) ** 2 + (g[1] - x_start[i, 1]) ** 2 + (g[2] - x_start[i, 2]) ** 2
         listed = motion2 < c_motion[c] * c_motion[c]
-        loaded = False  # pa, pb, pc hold the nearest triangle's corners
         if listed:
             static = tri_v[entry_hint[e], 0] >= n_nodes  # a static surface does not move
             if not static and surface < 0.0:
@@ -89,19 +88,18 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
             # more than the test (docs/interaction.md, "The narrow phase's cost").
             t, h, reach = -1, entry_hint[e], c_reach[c]
             if entry_second[e] > 0.0:
-                load_triangle(x, static_x, n_nodes, tri_v, h, pa, pb, pc)
-                d2, e0, e1, e2, feature = closest_with_distance2(g, pa, pb, pc)
+                ax, ay, az, bx, by, bz, cx, cy, cz = corners(x, static_x, n_nodes, tri_v, h)
+                d2, e0, e1, e2, feature = closest_on_triangle_xyz(g[0], g[1], g[2], ax, ay, az, bx, by, bz, cx, cy,
+                                                                  cz)
                 if d2 < reach * reach * (1.0 - 1e-6):
                     if np.sqrt(d2) + np.sqrt(motion2) + moved_surface + 1e-9 * reach < entry_second[e]:
-                        t, f, b0, b1, b2, loaded = h, feature, e0, e1, e2, True  # pa, pb, pc: its corners
+                        t, f, b0, b1, b2 = h, feature, e0, e1, e2
             if t < 0:
                 t, f, b0, b1, b2, _ = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
-                                                       entry_hint[e], candidates, entry_start[e], entry_start[e + 1],
-                                                       pa, pb, pc)
+                                                       entry_hint[e], candidates, entry_start[e], entry_start[e + 1])
         else:
             t, f, b0, b1, b2, _ = nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, c_reach[c],
-                                                   entry_hint[e], all_triangles, c_tri_start[c], c_tri_start[c + 1],
-                                                   pa, pb, pc)
+                                                   entry_hint[e], all_triangles, c_tri_start[c], c_tri_start[c + 1])
         clear_d[e] = 0.0
         if t < 0:
             if listed and entry_closed[e]:  # no listed triangle within reach
@@ -112,11 +110,10 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
         if va < n_nodes and normals_at[t] != substep:  # a body surface's, at the broad phase's positions
             feature_normals(x_start, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edge_n, corner_n)
             normals_at[t] = substep
-        if not loaded:
-            load_triangle(x, static_x, n_nodes, tri_v, t, pa, pb, pc)
-        qx = b0 * pa[0] + b1 * pb[0] + b2 * pc[0]
-        qy = b0 * pa[1] + b1 * pb[1] + b2 * pc[1]
-        qz = b0 * pa[2] + b1 * pb[2] + b2 * pc[2]
+        ax, ay, az, bx, by, bz, cx, cy, cz = corners(x, static_x, n_nodes, tri_v, t)
+        qx = b0 * ax + b1 * bx + b2 * cx
+        qy = b0 * ay + b1 * by + b2 * cy
+        qz = b0 * az + b1 * bz + b2 * cz
         dx, dy, dz = g[0] - qx, g[1] - qy, g[2] - qz
         if f < 3:
             Nx, Ny, Nz = corner_n[t, f, 0], corner_n[t, f, 1], corner_n[t, f, 2]

@@ -104,7 +104,6 @@ def test_the_runner_up_is_the_second_nearest_triangle_capped_at_reach():
     cs = ContactSet([state], 0)
     reach = state.reach
     everything = np.arange(faces.shape[0], dtype=np.int64)
-    scratch = [np.empty(3) for _ in range(3)]
     rng = np.random.default_rng(3)
     queries = list(rng.uniform([-0.13, -0.13, -0.04], [0.13, 0.13, 0.04], (300, 3))) + [points[14], points[15] * 0.5 + points[21] * 0.5]
     ties = 0
@@ -112,9 +111,9 @@ def test_the_runner_up_is_the_second_nearest_triangle_capped_at_reach():
         d2 = np.array([np.sum((g - sum(b * points[f[j]] for j, b in enumerate(closest_on_triangle(g, *points[f])[:3])))
                               ** 2) for f in faces])
         t, f, b0, b1, b2, second2 = nearest_triangle(g, np.zeros((0, 3)), cs.static_x, 0, cs.tri_v, cs.face_n, cs.lo,
-                                                     cs.hi, reach, -1, everything, 0, everything.size, *scratch, 1.0)
+                                                     cs.hi, reach, -1, everything, 0, everything.size, 1.0)
         plain = nearest_triangle(g, np.zeros((0, 3)), cs.static_x, 0, cs.tri_v, cs.face_n, cs.lo, cs.hi, reach, -1,
-                                 everything, 0, everything.size, *scratch)
+                                 everything, 0, everything.size)
         assert plain[:5] == (t, f, b0, b1, b2) and plain[5] == reach * reach
         order = np.argsort(d2, kind="stable")
         if d2[order[0]] > reach * reach:
@@ -140,14 +139,13 @@ def test_a_static_surface_clearance_is_its_distance_capped_at_two_reach():
     state = SurfaceContactState(SurfaceContact(np.zeros(0), faces, points), np.zeros((0, 3)))
     cs = ContactSet([state], 0)
     seen = np.full(faces.shape[0], -1, np.int64)
-    scratch = [np.empty(3) for _ in range(3)]
     checked = 0
     for q, g in enumerate(rng.uniform([-0.25, -0.25, -0.1], [0.25, 0.25, 0.15], (200, 3))):
         brute = min(np.linalg.norm(g - sum(b * points[f[j]] for j, b in enumerate(closest_on_triangle(
             g, *points[f])[:3]))) for f in faces)
         clear = _static_clearance(g, np.zeros((0, 3)), cs.static_x, 0, cs.tri_v, cs.lo, cs.hi, state.reach, 0,
                                   cs.g_origin[0], cs.g_cell[0], cs.g_dims[0], cs.g_start_off[0], cs.g_items_off[0],
-                                  cs.g_start, cs.g_items, seen, -2 - q, *scratch)
+                                  cs.g_start, cs.g_items, seen, -2 - q)
         expected = min(brute, 2.0 * state.reach)
         # 1e-9 relative margin, and the distance's own rounding: a few ulps of 0.1 m coordinates (1e-15 m)
         assert expected * (1.0 - 1e-9) - 1e-14 <= clear <= expected * (1.0 - 1e-9) + 1e-14
