@@ -44,11 +44,8 @@ render: setup
 
 # One numba thread per pytest worker: two workers already fill the two cores, and oversubscribed
 # parallel kernels slow down badly.
-# OpenBLAS's AVX-512 kernels (Zen 4, Skylake-X) round some linear algebra differently, and the EBM cylinder at 20
-# iterations then diverges (tests/sim/integrators/ebm/test_solver.py, found 2026-12-07 on a Zen 4 machine, at
-# 246e9bb too): the suite pins OpenBLAS's Haswell kernels until that case is made robust
 test: setup
-	OPENBLAS_CORETYPE=Haswell NUMBA_NUM_THREADS=1 $(PY) -m pytest -n $(PYTEST_WORKERS) -q tests
+	NUMBA_NUM_THREADS=1 $(PY) -m pytest -n $(PYTEST_WORKERS) -q tests
 
 bench: setup
 	for b in benchmarks/*.py; do echo "== $$b"; $(PY) $$b --quick || exit 1; done

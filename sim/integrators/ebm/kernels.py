@@ -18,7 +18,7 @@ import math
 import numpy as np
 from numba import njit
 
-from sim.constitutive.force_kernels import tet_energy_gradient
+from sim.constitutive.force_kernels import count_inverted, tet_energy_gradient
 
 @njit(cache=True)
 def ebm_iterations(x, dx, tets, Dm_inv, volume, mu, lam, eta, fibre, code, w, node_scale, prony, relax_a, Gamma,
@@ -68,3 +68,35 @@ def ebm_iterations(x, dx, tets, Dm_inv, volume, mu, lam, eta, fibre, code, w, no
         if not finite:
             return it
     return iterations
+
+
+
+@njit(cache=True)
+def uninverting_fraction(x, x_prev, v_prev, f_ext, w, h, kin_nodes, kin_target, tets, backtrack, max_backtracks):
+    """The share ``alpha`` of the velocity that the prediction 5.13 may extrapolate without inverting an element:
+    1, or the first of ``backtrack, backtrack^2, ...`` for which ``x = x_prev + h (alpha v_prev + h f_ext w)``
+    (kinematic nodes at ``kin_target``) gives every tet a positive volume ``det(x1 - x0, x2 - x0, x3 - x0)``.
+    ``x`` (n, 3) is scratch and holds that prediction on return, with the arithmetic of the step kernels (so that
+    theirs, given ``alpha * v_prev``, is the one checked, bit for bit). Returns 0.0 when even
+    ``backtrack^max_backtracks`` inverts a tet: then the kinematic targets or the external force invert it, not the
+    velocity, and the sweeps report the failure.
+
+    Why: the split Neo-Hookean energies (5.35, 5.37) are undefined for J <= 0, so an inverted prediction makes every
+    later sweep non-finite. The velocity 5.15 is the position change of sweeps that have not converged (on the Zhang
+    5.3.2 cylinder they wander by ~1e-2 m per sweep however many are run), and the prediction extrapolates that
+    wander; a backtracking line search on the velocity keeps the one condition the energy needs, and removes as
+    little of the body's motion as the search's grid allows. A step whose full prediction inverts nothing is
+    unchanged."""
+    n = x.shape[0]
+    alpha = 1.0
+    for _ in range(max_backtracks + 1):
+        for i in range(n):
+            for d in range(3):
+                x[i, d] = x_prev[i, d] + h * (alpha * v_prev[i, d] + h * f_ext[i, d] * w[i])
+        for q in range(kin_nodes.shape[0]):
+            for d in range(3):
+                x[kin_nodes[q], d] = kin_target[q, d]
+        if count_inverted(x, tets) == 0:
+            return alpha
+        alpha *= backtrack
+    return 0.0

@@ -13,6 +13,12 @@ Each step (our reading of the lost eq. 5.15 and Fig. 5.1; docs/ebm.md):
    the thesis's literal 5.9;
 3. velocity from the position change, ``v = (x - x^t) / h`` (our reading of 5.15).
 
+With the split Neo-Hookean models (5.35, 5.37: undefined for J <= 0) the velocity term of the prediction is shortened
+(by 0.9 at a time) until no element is inverted (``sim.integrators.ebm.kernels.uninverting_fraction``; docs/design.md,
+"Zhang ch. 5: EBM"): the velocity of sweeps that have not converged carries their wander, and extrapolating it can
+invert an element, on which every later sweep would fail. ``shortened_predictions`` lists ``(t, alpha)`` of each step
+where it did; a step whose full prediction inverts nothing is unchanged.
+
 It is position-based dynamics with each element's energy as a zero-compliance constraint: the
 iterations lower every element's energy towards the configuration the boundary conditions allow.
 Displacement-controlled loads (prescribed nodes) stay in balance because those nodes do not move;
@@ -55,6 +61,12 @@ from sim.model import Model, State
 
 
 MAX_STRETCH = 10.0  # |F|_F / sqrt(3) above this after a step: no tissue does that, the iterations failed
+# the prediction's backtracking on the velocity (sim.integrators.ebm.kernels.uninverting_fraction): the first of
+# 0.9^k that inverts nothing, so little more of the motion is removed than must be (measured on the Zhang 5.3.2
+# cylinder at 20 iterations: halving left the stored energy above the spread of the runs that need no cut, 0.9 inside
+# it); down to 0.9^200 ~ 7e-10, where the velocity no longer matters
+PREDICTION_BACKTRACK = 0.9
+PREDICTION_BACKTRACKS = 200
 
 
 class EBM:
@@ -93,6 +105,12 @@ class EBM:
         self.prony = PronyHistory(prony, model.n_tets) if prony else None
         self.f_ext = model.nodal_external_force()
         self.red_history: list[float] = []
+        # the prediction is kept from inverting elements only where the energy is undefined for J <= 0
+        self._guard_prediction = model.constitutive in models.SPLIT_MODELS
+        self._kinematic = model.kinematic()
+        self._prediction_scratch = np.zeros((model.n_nodes, 3))
+        self._guard_tets = np.ascontiguousarray(model.tets, dtype=np.int64)
+        self.shortened_predictions: list[tuple[float, float]] = []
         self.work_in = 0.0
         self._last_load_force = model.nodal_external_force()  # at rest: no reaction yet
         if self.kernel != "numpy":
@@ -297,8 +315,8 @@ class EBM:
         x, v, t = state.x.copy(), state.v.copy(), state.t
         for _ in range(self.substeps):
             x_old = x.copy()
-            x = x + h * (v + h * self.f_ext * self.w[:, None])  # 5.13
             t += h
+            x = x + h * (self._prediction_fraction(x, v, h, t) * v + h * self.f_ext * self.w[:, None])  # 5.13
             kin, target = m.kinematic_targets(t)
             x_kin_before = x_old[kin]
             x[kin] = target
@@ -323,6 +341,9 @@ class EBM:
             x_old, v_old = x, v
             x, v = np.empty(shape), np.empty(shape)
             t += h
+            alpha = self._prediction_fraction(x_old, v_old, h, t)
+            if alpha != 1.0:  # the kernel then predicts from alpha v, as uninverting_fraction checked
+                v_old = alpha * v_old
             a = 1.0 if self.prony is None else self._relaxation(h)[1][0]
             blocks = (self._node_index, self._params, self._relax_blocks, self._out, self._corners, self._free_nodes,
                       self._free_start, self._free_slot, self._blocked_scale, self.model.n_tets)
@@ -337,6 +358,21 @@ class EBM:
             if self.prony is not None:
                 self._commit_prony(x, h)
         return State(x=x, v=v, t=t, private=state.private)
+
+    def _prediction_fraction(self, x_prev, v_prev, h, t):
+        """``alpha``, the share of the velocity the prediction 5.13 extrapolates: 1, or the first of 0.9, 0.81, ...
+        for which no element is inverted (``sim.integrators.ebm.kernels.uninverting_fraction``; split models only).
+        A shortened step is recorded in ``shortened_predictions``."""
+        if not self._guard_prediction:
+            return 1.0
+        x_prev = np.ascontiguousarray(x_prev, dtype=np.float64)
+        v_prev = np.ascontiguousarray(v_prev, dtype=np.float64)
+        alpha = ebm_kernels.uninverting_fraction(self._prediction_scratch, x_prev, v_prev, self.f_ext, self.w, h,
+                                                 self._kinematic.nodes, self._kinematic.at(t), self._guard_tets,
+                                                 PREDICTION_BACKTRACK, PREDICTION_BACKTRACKS)
+        if alpha != 1.0:
+            self.shortened_predictions.append((float(t), float(alpha)))
+        return alpha
 
     def _check_stretch(self, stretch, t):
         if not stretch <= MAX_STRETCH:
