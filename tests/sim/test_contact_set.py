@@ -46,7 +46,9 @@ def _steps(model, steps=12, dt=0.02):
 
 def test_candidate_lists_and_the_fused_sweeps_step_bit_for_bit_as_full_searches_in_python_sweeps():
     model = _stack()
-    fused, state, loads = _steps(model)
+    # more steps than one begin_step computes the tool's poses for: the look-ahead rolls over
+    steps = sweeps.FusedSweeps.LOOKAHEAD + 4
+    fused, state, loads = _steps(model, steps=steps)
     assert fused.fused is not None  # the fused path ran
     # real work in every part: the tool pushed, the grasp held nodes, the blocks pressed each other and the floor
     assert np.abs(loads[-1, 0:3]).max() > 0.1 and fused.grasps[0].nodes.size > 0
@@ -55,7 +57,7 @@ def test_candidate_lists_and_the_fused_sweeps_step_bit_for_bit_as_full_searches_
     try:
         sweeps.FusedSweeps.covers = staticmethod(lambda xpbd, probes: False)  # the per-sweep Python loop
         ContactSet.motion_fraction = 0.0  # no node is ever still enough: every sweep searches every triangle
-        loop, state_ref, loads_ref = _steps(model)
+        loop, state_ref, loads_ref = _steps(model, steps=steps)
     finally:
         sweeps.FusedSweeps.covers, ContactSet.motion_fraction = covers, fraction
     assert loop.fused is None

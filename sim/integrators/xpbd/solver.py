@@ -232,10 +232,7 @@ class XPBD:
         plane_loads = np.zeros((len(self.planes), 6))
         contact_loads = np.zeros((self.contact_pairs, 6))
         if fused is not None:  # the tools' capsules at every substep's end at once
-            ends = [t]
-            for _ in range(self.substeps):
-                ends.append(ends[-1] + h)
-            fused.begin_step(m.probes, ends[1:])
+            fused.begin_step(m.probes, t, h, self.substeps)
         for s in range(self.substeps):
             t_next = t + h
             if self.cutter is not None:  # the blades remove the tets they sweep through over this substep

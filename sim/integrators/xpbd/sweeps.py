@@ -128,9 +128,14 @@ class FusedSweeps:
     """Runs a substep's sweeps of an :class:`~sim.integrators.xpbd.solver.XPBD` in one call (:func:`substep_sweeps`);
     :meth:`covers` says whether it can. The planes' summed corrections become rows of one array (each
     ``PlaneState.dn`` a view of its row). :meth:`begin_step` finds the tools' capsules and centres at every
-    substep of the step at once (``Probe.capsule_rows``, the values one time at a time gives); the grasps' packed
+    substep of ``LOOKAHEAD`` steps at once (``Probe.capsule_rows``, the values one time at a time gives: each row is
+    computed alone), used while the steps follow on at the same substep; the grasps' packed
     nodes, offsets and multipliers are kept while no grasp's nodes change (each ``GraspState.lam`` a view of its
     rows, zeroed at every substep)."""
+
+    # steps whose tools' poses one begin_step computes: numpy's per-call overhead, not the rows, is what costs
+    # (about 1 ms a step for one instrument at 8 substeps; docs/interaction.md, "Where the step goes")
+    LOOKAHEAD = 16
 
     @staticmethod
     def covers(xpbd, probes) -> bool:
@@ -152,19 +157,35 @@ class FusedSweeps:
             p.dn = self.plane_dn[k]
         self.x_start = np.zeros((n, 3))
         self.grasps_packed = None  # (grasps and their nodes arrays, inv_dt2) the packed grasp arrays are of
+        self.ahead = None  # (probes, h, substeps, step start times, capsules, centres, margins) of begin_step
 
-    def begin_step(self, probes: list, times: list) -> None:
+    def begin_step(self, probes: list, t: float, h: float, substeps: int) -> None:
         """The capsules (substeps, capsules, 7), their ranges per tool, the tools' centres (substeps, tools, 3) and
-        largest radii (substeps, tools) of ``probes`` at the substeps' end ``times``."""
-        self.probes, self.times = list(probes), list(times)
-        rows = [p.capsule_rows(times) for p in probes]
-        n = len(times)
-        self.capsules = np.ascontiguousarray(np.concatenate(rows, axis=1) if rows else np.zeros((n, 0, 7)))
-        self.capsule_start = np.concatenate([[0], np.cumsum([r.shape[1] for r in rows])]).astype(np.int64)
-        self.centres = np.ascontiguousarray(np.stack([p.positions_at(times) for p in probes], axis=1) if probes
-                                            else np.zeros((n, 0, 3)))
-        self.margins = np.ascontiguousarray(np.stack([r[:, :, 6].max(axis=1) if r.shape[1] else np.zeros(n)
-                                                      for r in rows], axis=1) if rows else np.zeros((n, 0)))
+        largest radii (substeps, tools) of ``probes`` at the substeps' ends of the step from ``t``: ``t + h``,
+        ``t + h + h``, ... (the step's own sums). Computed for ``LOOKAHEAD`` steps on (the next starting where this
+        one ends, as ``XPBD.step`` returns it) and kept while the steps come as foreseen."""
+        self.probes = list(probes)
+        ahead = self.ahead
+        if (ahead is None or len(ahead[0]) != len(probes) or any(p is not q for p, q in zip(ahead[0], probes))
+                or ahead[1] != h or ahead[2] != substeps or t not in ahead[3]):
+            ends, starts = [t], []
+            for _ in range(self.LOOKAHEAD):
+                starts.append(ends[-1])
+                for _ in range(substeps):
+                    ends.append(ends[-1] + h)
+            times = ends[1:]
+            rows = [p.capsule_rows(times) for p in probes]
+            n = len(times)
+            capsules = np.ascontiguousarray(np.concatenate(rows, axis=1) if rows else np.zeros((n, 0, 7)))
+            self.capsule_start = np.concatenate([[0], np.cumsum([r.shape[1] for r in rows])]).astype(np.int64)
+            centres = np.ascontiguousarray(np.stack([p.positions_at(times) for p in probes], axis=1) if probes
+                                           else np.zeros((n, 0, 3)))
+            margins = np.ascontiguousarray(np.stack([r[:, :, 6].max(axis=1) if r.shape[1] else np.zeros(n)
+                                                     for r in rows], axis=1) if rows else np.zeros((n, 0)))
+            ahead = self.ahead = (list(probes), h, substeps, starts, capsules, centres, margins)
+        k = ahead[3].index(t) * substeps
+        self.capsules, self.centres, self.margins = (ahead[4][k:k + substeps], ahead[5][k:k + substeps],
+                                                     ahead[6][k:k + substeps])
 
     def _tools(self, probes, s: int, t: float) -> tuple:
         """Capsules, their ranges, centres and margins of ``probes`` at substep s (ending at ``t``): the step's
