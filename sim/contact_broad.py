@@ -302,7 +302,7 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                 nodes_lo[d] = min(nodes_lo[d], max(x[nodes[q], d], surface_lo[d]))
                 nodes_hi[d] = max(nodes_hi[d], min(x[nodes[q], d], surface_hi[d]))
         n_body = 0
-        grow = 2.0 * c_motion[c]
+        grow = 2.0 * c_motion[c] + c_slack[c]  # the largest list radius beyond reach (below)
         if not c_static[c]:  # (boxes grown by grow too: the triangles left out are beyond reach + grow of every node)
             for t in range(t0, t1):
                 overlaps = True
@@ -313,7 +313,7 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                     n_body += 1
         if not c_static[c] and n_body == 0:
             continue
-        if not c_static[c]:  # a grid of those, their boxes grown by reach + 2 c_motion (the largest list radius)
+        if not c_static[c]:  # a grid of those, their boxes grown by reach + grow (the largest list radius)
             sub_lo, sub_hi = np.empty((n_body, 3)), np.empty((n_body, 3))
             for s in range(n_body):
                 for d in range(3):
@@ -384,12 +384,12 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                 cell_id = g_start_off[c] + (cx * g_dims[c, 1] + cy) * g_dims[c, 2] + cz
                 if g_clearance[cell_id] > reach:  # no triangle within reach of any point of the cell
                     continue
-                # the node's superset: the triangles within reach + 2 c_motion + skin of where it was built, kept
-                # while the node is within skin of there (all within reach + 2 c_motion of it are in it)
+                # the node's superset: the triangles within reach + grow + skin of where it was built, kept while
+                # the node is within skin of there (all within reach + grow of it, the largest list, are in it)
                 for d in range(3):
                     far2 += (g[d] - sup_ref[q, d]) ** 2
                 if sup_len[q] < 0 or far2 > c_skin[c] * c_skin[c]:
-                    cand, n_end = _gather_own(g, reach + 2.0 * c_motion[c] + c_skin[c], reach, t0, lo, hi,
+                    cand, n_end = _gather_own(g, reach + grow + c_skin[c], reach, t0, lo, hi,
                                               own_frame[c], own_dims[c], own_off[c, 0], own_off[c, 1], own_start,
                                               own_items, seen, -2 - nodes.size - q, cand, n_cand)
                     sup_len[q] = n_end - n_cand if n_end - n_cand <= sup_items.shape[1] else -1
@@ -465,9 +465,11 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
             ry = g[1] - (b0 * ay + b1 * by + b2 * cy)
             rz = g[2] - (b0 * az + b1 * bz + b2 * cz)
             d0 = rx * rx + ry * ry + rz * rz
-            # a triangle within reach of the node during the sweeps is within reach + 2 c_motion of it now
-            # listed with room for the node and the surface to move a little before the list is built again
-            radius = min(np.sqrt(d0) + 4.0 * c_motion[c] + c_slack[c], reach + 2.0 * c_motion[c])
+            # a triangle within reach of the node during the sweeps is within reach + 2 c_motion of it now (and
+            # within its distance to the hint plus 4 c_motion); listed with room (c_slack) for the node and the
+            # surface to move a little before the list is built again: beyond the cap too, or a node farther than
+            # reach - 2 c_motion - c_slack from the surface would need a new list at every substep
+            radius = min(np.sqrt(d0) + 4.0 * c_motion[c], reach + 2.0 * c_motion[c]) + c_slack[c]
             # the listed triangles: within radius of the node (a static surface: from the cells radius around it)
             n_list = 0
             if c_static[c]:

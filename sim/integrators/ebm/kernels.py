@@ -70,7 +70,6 @@ def ebm_iterations(x, dx, tets, Dm_inv, volume, mu, lam, eta, fibre, code, w, no
     return iterations
 
 
-
 @njit(cache=True)
 def uninverting_fraction(x, x_prev, v_prev, f_ext, w, h, kin_nodes, kin_target, tets, backtrack, max_backtracks):
     """The share ``alpha`` of the velocity that the prediction 5.13 may extrapolate without inverting an element:
