@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.contact_mesh import build_grid, closest_on_triangle_xyz, corner_angle
+from sim.contact_mesh import build_grid, closest_on_triangle_xyz, corner_angle_xyz
 
 
 @njit(cache=True)
@@ -178,11 +178,12 @@ def _listed_clearance(g, x, static_x, n_nodes, tri_v, lo, hi, reach, cand, c0, c
 
 
 @njit(cache=True)
-def feature_normals(x, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edge_n, corner_n):
+def feature_normals(x, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edge_n, corner_n, lv_n, lv_at, stamp):
     """Triangle t's edge normals (its and its neighbour's face normals summed) and angle-weighted vertex normals at
     its corners (over the faces around each, ascending: the sums of ``sim.contact_mesh.pseudonormals``, the same
     arithmetic) at positions ``x``; ``tri_lv``: a corner's surface vertex, ``lv_face[lv_start[v]:lv_start[v + 1]]``
-    the faces around it."""
+    the faces around it. A vertex normal is computed once per ``stamp`` (``lv_n[v]``, found at ``lv_at[v]``) and
+    shared by the triangles around it (each would sum the same faces in the same order)."""
     for k in range(3):
         f = tri_adj[t, k]
         for d in range(3):
@@ -192,21 +193,26 @@ def feature_normals(x, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edg
             for d in range(3):
                 edge_n[t, k, d] /= length
         v = tri_lv[t, k]
-        nx = ny = nz = 0.0
-        for s in range(lv_start[v], lv_start[v + 1]):
-            f = lv_face[s]
-            corner = 0
-            while tri_lv[f, corner] != v:
-                corner += 1
-            angle = corner_angle(x, tri_v[f, corner], tri_v[f, (corner + 1) % 3], tri_v[f, (corner + 2) % 3])
-            if angle >= 0.0:
-                nx += angle * face_n[f, 0]
-                ny += angle * face_n[f, 1]
-                nz += angle * face_n[f, 2]
-        length = np.sqrt(nx * nx + ny * ny + nz * nz)
-        if length > 0.0:
-            nx, ny, nz = nx / length, ny / length, nz / length
-        corner_n[t, k, 0], corner_n[t, k, 1], corner_n[t, k, 2] = nx, ny, nz
+        if lv_at[v] != stamp:
+            nx = ny = nz = 0.0
+            for s in range(lv_start[v], lv_start[v + 1]):
+                f = lv_face[s]
+                corner = 0
+                while tri_lv[f, corner] != v:
+                    corner += 1
+                v0, v1, v2 = tri_v[f, corner], tri_v[f, (corner + 1) % 3], tri_v[f, (corner + 2) % 3]
+                angle = corner_angle_xyz(x[v1, 0] - x[v0, 0], x[v1, 1] - x[v0, 1], x[v1, 2] - x[v0, 2],
+                                         x[v2, 0] - x[v0, 0], x[v2, 1] - x[v0, 1], x[v2, 2] - x[v0, 2])
+                if angle >= 0.0:
+                    nx += angle * face_n[f, 0]
+                    ny += angle * face_n[f, 1]
+                    nz += angle * face_n[f, 2]
+            length = np.sqrt(nx * nx + ny * ny + nz * nz)
+            if length > 0.0:
+                nx, ny, nz = nx / length, ny / length, nz / length
+            lv_n[v, 0], lv_n[v, 1], lv_n[v, 2] = nx, ny, nz
+            lv_at[v] = stamp
+        corner_n[t, k, 0], corner_n[t, k, 1], corner_n[t, k, 2] = lv_n[v, 0], lv_n[v, 1], lv_n[v, 2]
 
 
 @njit(cache=True)

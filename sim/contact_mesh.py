@@ -106,14 +106,20 @@ def unit_face_normal(xv, a, b, c):
 
 
 @njit(cache=True)
-def corner_angle(xv, v0, v1, v2):
-    """The angle at row v0 of the triangle (v0, v1, v2) of ``xv`` (the vertex normals' weight); -1 when degenerate."""
-    ux, uy, uz = xv[v1, 0] - xv[v0, 0], xv[v1, 1] - xv[v0, 1], xv[v1, 2] - xv[v0, 2]
-    wx, wy, wz = xv[v2, 0] - xv[v0, 0], xv[v2, 1] - xv[v0, 1], xv[v2, 2] - xv[v0, 2]
+def corner_angle_xyz(ux, uy, uz, wx, wy, wz):
+    """The angle between the edges u and w leaving a triangle's corner (the vertex normals' weight); -1 when
+    degenerate. Scalars: see :func:`closest_on_triangle_xyz`."""
     lu, lw = np.sqrt(_dot(ux, uy, uz, ux, uy, uz)), np.sqrt(_dot(wx, wy, wz, wx, wy, wz))
     if lu > 0.0 and lw > 0.0:
         return np.arccos(min(1.0, max(-1.0, _dot(ux, uy, uz, wx, wy, wz) / (lu * lw))))
     return -1.0
+
+
+@njit(cache=True)
+def corner_angle(xv, v0, v1, v2):
+    """The angle at row v0 of the triangle (v0, v1, v2) of ``xv`` (:func:`corner_angle_xyz`)."""
+    return corner_angle_xyz(xv[v1, 0] - xv[v0, 0], xv[v1, 1] - xv[v0, 1], xv[v1, 2] - xv[v0, 2],
+                            xv[v2, 0] - xv[v0, 0], xv[v2, 1] - xv[v0, 1], xv[v2, 2] - xv[v0, 2])
 
 
 @njit(cache=True)

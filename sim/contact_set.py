@@ -45,15 +45,16 @@ def _most_moved(x, x_start, nodes):
 @njit(cache=True)
 def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact, entry_hint, entry_start, candidates,
                     entry_second, surface_nodes, all_triangles, c_tri_start, tri_v, tri_adj, tri_lv, lv_start, lv_face,
-                    normals_at, substep, face_n, edge_n, corner_n, lo, hi, c_reach, c_motion, entry_closed, clear_x,
-                    clear_d, clear_m, c_sign, c_pair, lam_n, contact_tri, contact_bary, contact_n, loads):
+                    normals_at, substep, face_n, edge_n, corner_n, lv_n, lv_at, lo, hi, c_reach, c_motion, entry_closed,
+                    clear_x, clear_d, clear_m, c_sign, c_pair, lam_n, contact_tri, contact_bary, contact_n, loads):
     """One Gauss-Seidel pass of the contact constraint over the visited nodes (``sim.contact_mesh.project_nodes``'
     update: both sides moved by their inverse masses); per entry the summed normal impulse, the triangle,
     barycentrics and normal of its last correction; ``c_sign[c]`` times the impulse and its moment about the origin
     added to ``loads[c_pair[c]]``. A node searches its candidate list while it has moved less than ``c_motion[c]``
     since the broad phase (``x_start``), else all of its contact's triangles (``all_triangles``: 0, 1, ...). Returns
     the number of corrections. A body surface's edge and vertex normals are computed for a triangle when it is
-    first nearest to a node in the substep (``normals_at[t]``: the last ``substep`` they were). A node found outside a
+    first nearest to a node in the substep (``normals_at[t]``: the last ``substep`` they were; a vertex's in ``lv_n``,
+    of substep ``lv_at``, shared by its triangles). A node found outside a
     surface closed around it (``entry_closed[e]``: a closed surface, or no listed triangle at a border of an open one,
     where the pseudonormal test's sign is the side) at distance ``clear_d[e]`` at ``clear_x[e]`` (its listed vertices
     then moved ``clear_m[e]`` since the broad phase) stays outside while its motion since and its listed vertices'
@@ -108,7 +109,8 @@ def project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact,
             continue
         va, vb, vc = tri_v[t, 0], tri_v[t, 1], tri_v[t, 2]
         if va < n_nodes and normals_at[t] != substep:  # a body surface's, at the broad phase's positions
-            feature_normals(x_start, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edge_n, corner_n)
+            feature_normals(x_start, t, tri_v, tri_adj, tri_lv, lv_start, lv_face, face_n, edge_n, corner_n, lv_n,
+                            lv_at, substep)
             normals_at[t] = substep
         ax, ay, az, bx, by, bz, cx, cy, cz = corners(x, static_x, n_nodes, tri_v, t)
         qx = b0 * ax + b1 * bx + b2 * cx
@@ -364,6 +366,8 @@ class ContactSet:
         self.node_drift = np.zeros(self.nodes.size)  # the surface's drift (c_drift) when node_clear was found
         self.last_hint = np.full(self.nodes.size, -1, np.int64)
         self.normals_at = np.full(self.tri_v.shape[0], -1, np.int64)  # feature normals: the substep they are of
+        self.lv_n = np.zeros((lv_count, 3))  # a body surface vertex's normal, of substep lv_at
+        self.lv_at = np.full(lv_count, -1, np.int64)
         self.substep = 0
         self.begin(None)
 
@@ -408,8 +412,8 @@ class ContactSet:
                 self.entry_start, self.candidates, self.entry_second, self.surface_nodes, self.all_triangles,
                 self.c_tri_start,
                 self.tri_v, self.tri_adj, self.tri_lv, self.lv_start, self.lv_face, self.normals_at, self.substep,
-                self.face_n, self.edge_n, self.corner_n, self.lo, self.hi, self.c_reach, self.c_motion,
-                self.entry_closed, self.clear_x, self.clear_d, self.clear_m, self.c_sign, self.c_pair, self.lam_n,
+                self.face_n, self.edge_n, self.corner_n, self.lv_n, self.lv_at, self.lo, self.hi, self.c_reach,
+                self.c_motion, self.entry_closed, self.clear_x, self.clear_d, self.clear_m, self.c_sign, self.c_pair, self.lam_n,
                 self.tri, self.bary, self.normal)
 
     def project(self, x: np.ndarray, w: np.ndarray, loads: np.ndarray) -> int:

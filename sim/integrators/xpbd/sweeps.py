@@ -73,8 +73,8 @@ def substep_sweeps(x, w, w_tools, x_start, inv_dt2, iterations, node_index, para
                    plane_point, plane_normal, plane_acts, plane_dn, plane_loads, static_x, n_nodes, entry_node,
                    entry_contact, entry_hint, entry_start, candidates, entry_second, surface_nodes, all_triangles,
                    c_tri_start, tri_v, tri_adj, tri_lv, lv_start, lv_face, normals_at, substep, face_n, edge_n,
-                   corner_n, lo, hi, c_reach, c_motion, entry_closed, clear_x, clear_d, clear_m, c_sign, c_pair, lam_n,
-                   contact_tri, contact_bary, contact_n, contact_loads):
+                   corner_n, lv_n, lv_at, lo, hi, c_reach, c_motion, entry_closed, clear_x, clear_d, clear_m, c_sign,
+                   c_pair, lam_n, contact_tri, contact_bary, contact_n, contact_loads):
     """``iterations`` sweeps of one substep (module docstring). Tool p: capsules ``capsule_start[p]:capsule_start[p +
     1]`` (rows a, b, radius), centre ``probe_centre[p]``, candidate nodes those within ``probe_margin[p]`` of its
     capsules at the substep's start (:func:`nodes_near_capsules`), loads ``probe_loads[p]``; grasp g: nodes, offsets and
@@ -119,9 +119,9 @@ def substep_sweeps(x, w, w_tools, x_start, inv_dt2, iterations, node_index, para
         if entry_node.size:
             project_entries(x, w, x_start, static_x, n_nodes, entry_node, entry_contact, entry_hint, entry_start,
                             candidates, entry_second, surface_nodes, all_triangles, c_tri_start, tri_v, tri_adj, tri_lv,
-                            lv_start, lv_face, normals_at, substep, face_n, edge_n, corner_n, lo, hi, c_reach, c_motion,
-                            entry_closed, clear_x, clear_d, clear_m, c_sign, c_pair, lam_n, contact_tri, contact_bary,
-                            contact_n, contact_loads)
+                            lv_start, lv_face, normals_at, substep, face_n, edge_n, corner_n, lv_n, lv_at, lo, hi,
+                            c_reach, c_motion, entry_closed, clear_x, clear_d, clear_m, c_sign, c_pair, lam_n,
+                            contact_tri, contact_bary, contact_n, contact_loads)
 
 
 class FusedSweeps:
@@ -240,5 +240,5 @@ class FusedSweeps:
             self.plane_dn, plane_loads, cs.static_x, cs.n_nodes, cs.entry_node, cs.entry_contact, cs.entry_hint,
             cs.entry_start, cs.candidates, cs.entry_second, cs.surface_nodes, cs.all_triangles, cs.c_tri_start,
             cs.tri_v, cs.tri_adj, cs.tri_lv, cs.lv_start, cs.lv_face, cs.normals_at, cs.substep, cs.face_n, cs.edge_n,
-            cs.corner_n, cs.lo, cs.hi, cs.c_reach, cs.c_motion, cs.entry_closed, cs.clear_x, cs.clear_d, cs.clear_m,
-            cs.c_sign, cs.c_pair, cs.lam_n, cs.tri, cs.bary, cs.normal, contact_loads)
+            cs.corner_n, cs.lv_n, cs.lv_at, cs.lo, cs.hi, cs.c_reach, cs.c_motion, cs.entry_closed, cs.clear_x,
+            cs.clear_d, cs.clear_m, cs.c_sign, cs.c_pair, cs.lam_n, cs.tri, cs.bary, cs.normal, contact_loads)
