@@ -92,6 +92,24 @@ def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, firs
 
 
 @njit(cache=True)
+def outside_gap(g, x, static_x, n_nodes, tri_v, t, b0, b1, b2, feature, face_n, edge_n, corner_n):
+    """The distance from g to the point of triangle t at barycentrics b0, b1, b2 (its nearest, on ``feature``), a
+    little under it (rounding), when g lies on the outer side of the feature's pseudonormal (the narrow phase's inside
+    test, ``sim.contact_set.project_entries``); 0 when inside."""
+    ax, ay, az, bx, by, bz, cx, cy, cz = corners(x, static_x, n_nodes, tri_v, t)
+    dx = g[0] - (b0 * ax + b1 * bx + b2 * cx)
+    dy = g[1] - (b0 * ay + b1 * by + b2 * cy)
+    dz = g[2] - (b0 * az + b1 * bz + b2 * cz)
+    if feature < 3:
+        side = dx * corner_n[t, feature, 0] + dy * corner_n[t, feature, 1] + dz * corner_n[t, feature, 2]
+    elif feature < 6:
+        side = dx * edge_n[t, feature - 3, 0] + dy * edge_n[t, feature - 3, 1] + dz * edge_n[t, feature - 3, 2]
+    else:
+        side = dx * face_n[t, 0] + dy * face_n[t, 1] + dz * face_n[t, 2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz) * (1.0 - 1e-9) if side >= 0.0 else 0.0
+
+
+@njit(cache=True)
 def _grown(buf):
     """``buf`` in a buffer twice as long (the caller writes on)."""
     grown = np.empty(2 * buf.size + 16, buf.dtype)
@@ -253,7 +271,7 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                 g_cell, g_dims, g_start_off, g_items_off, g_start, g_items, g_clearance, own_frame, own_dims, own_off,
                 own_start, own_items, c_skin, sup_ref, sup_len, sup_items, c_closed, tri_border, c_slack, c_drift,
                 keep_ref, keep_drift, keep_cref, keep_cdrift, keep_second, keep_radius, keep_len, keep_items,
-                keep_closed, node_ref, node_clear, node_drift, last_hint, face_n, lo, hi):
+                keep_closed, node_ref, node_clear, node_drift, last_hint, face_n, edge_n, corner_n, lo, hi):
     """The substep's visited nodes (module docstring) of every contact c (its tested ``nodes[c_node_start[c]:
     c_node_start[c + 1]]``, its triangles ``c_tri_start[c]:c_tri_start[c + 1]``). Updates a body surface's
     ``face_n``, ``lo``, ``hi`` (all its triangles; edge and corner normals: :func:`feature_normals`, on demand). A
@@ -269,17 +287,20 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
     (at most ``reach + 2 c_motion[c]``; a body surface's from a grid of the triangles near the tested nodes)
     (with every point moved less than ``c_motion`` since, the nearest then is among them: the node and the hint's
     points each moved less than that). Returns ``(entry_node, entry_contact, entry_hint, entry_start, candidates,
-    entry_second, entry_closed)``: per visited node its contact, hint, candidate triangles
+    entry_second, entry_closed, entry_gap)``: per visited node its contact, hint, candidate triangles
     ``candidates[entry_start[e]:entry_start[e + 1]]``, a lower bound of its distance to the nearest triangle other
     than the hint (at most ``reach``; ``nearest_triangle``'s runner-up over the triangles whose grown box holds it,
-    which include every listed one within ``reach``) and whether the surface is closed around it (``c_closed[c]``, or
-    neither the hint nor a listed triangle is ``tri_border``)."""
+    which include every listed one within ``reach``), whether the surface is closed around it (``c_closed[c]``, or
+    neither the hint nor a listed triangle is ``tri_border``) and, for a static surface closed around it, its distance
+    to the surface when it is outside (:func:`outside_gap`; else 0): the narrow phase leaves it alone until it has
+    moved that far (``sim.contact_set.project_entries``, ``clear_d``)."""
     n_contacts = c_reach.size
     entry_node = np.empty(nodes.size, np.int64)
     entry_contact = np.empty(nodes.size, np.int64)
     entry_hint = np.empty(nodes.size, np.int64)
     entry_second = np.empty(nodes.size)
     entry_closed = np.empty(nodes.size, np.bool_)
+    entry_gap = np.zeros(nodes.size)
     entry_start = np.zeros(nodes.size + 1, np.int64)
     cand = np.empty(256, np.int64)
     near = np.empty(256, np.int64)  # a static surface's triangles in a node's grid cells, or a body's near its nodes
@@ -347,7 +368,7 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                 moved = np.sqrt((g[0] - keep_ref[q, 0]) ** 2 + (g[1] - keep_ref[q, 1]) ** 2
                                 + (g[2] - keep_ref[q, 2]) ** 2) + (c_drift[c] - keep_drift[q])
                 ax, ay, az, bx, by, bz, cx, cy, cz = corners(x, static_x, n_nodes, tri_v, h)
-                d2 = closest_on_triangle_xyz(g[0], g[1], g[2], ax, ay, az, bx, by, bz, cx, cy, cz)[0]
+                d2, b0, b1, b2, f = closest_on_triangle_xyz(g[0], g[1], g[2], ax, ay, az, bx, by, bz, cx, cy, cz)
                 margin = 1e-9 * reach
                 degenerate = face_n[h, 0] == 0.0 and face_n[h, 1] == 0.0 and face_n[h, 2] == 0.0
                 radius = min(np.sqrt(d2) + 4.0 * c_motion[c], reach + 2.0 * c_motion[c])
@@ -373,6 +394,9 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
                     entry_node[n_entries], entry_contact[n_entries], entry_hint[n_entries] = i, c, h
                     entry_second[n_entries] = second
                     entry_closed[n_entries] = keep_closed[q]
+                    if c_static[c] and keep_closed[q]:  # h is the nearest triangle, at b0, b1, b2 on f
+                        entry_gap[n_entries] = outside_gap(g, x, static_x, n_nodes, tri_v, h, b0, b1, b2, f, face_n,
+                                                           edge_n, corner_n)
                     n_cand += keep_len[q]
                     n_entries += 1
                     entry_start[n_entries] = n_cand
@@ -517,9 +541,12 @@ def broad_phase(x, static_x, n_nodes, c_static, c_reach, c_motion, c_node_start,
             keep_drift[q] = keep_cdrift[q] = c_drift[c]
             keep_second[q], keep_radius[q] = np.sqrt(second2), radius
             keep_closed[q] = entry_closed[n_entries]
+            if c_static[c] and entry_closed[n_entries]:
+                entry_gap[n_entries] = outside_gap(g, x, static_x, n_nodes, tri_v, hint, b0, b1, b2, f, face_n, edge_n,
+                                                   corner_n)
             n_cand += n_list
             n_entries += 1
             entry_start[n_entries] = n_cand
     return (entry_node[:n_entries].copy(), entry_contact[:n_entries].copy(), entry_hint[:n_entries].copy(),
             entry_start[:n_entries + 1].copy(), cand[:n_cand].copy(), entry_second[:n_entries].copy(),
-            entry_closed[:n_entries].copy())
+            entry_closed[:n_entries].copy(), entry_gap[:n_entries].copy())

@@ -386,7 +386,7 @@ class ContactSet:
             self.x_start[:] = x
             self.substep += 1
             (self.entry_node, self.entry_contact, self.entry_hint, self.entry_start, self.candidates,
-             self.entry_second, self.entry_closed) = broad_phase(
+             self.entry_second, self.entry_closed, gap) = broad_phase(
                 x, self.static_x, self.n_nodes, self.c_static, self.c_reach, self.c_motion, self.c_node_start,
                 self.nodes, self.c_tri_start, self.tri_v, self.g_origin, self.g_cell, self.g_dims, self.g_start_off,
                 self.g_items_off, self.g_start, self.g_items, self.g_clearance, self.own_frame, self.own_dims,
@@ -395,11 +395,14 @@ class ContactSet:
                 self.keep_drift, self.keep_cref, self.keep_cdrift, self.keep_second, self.keep_radius, self.keep_len,
                 self.keep_items, self.keep_closed,
                 self.node_ref, self.node_clear, self.node_drift, self.last_hint,
-                self.face_n, self.lo, self.hi)
+                self.face_n, self.edge_n, self.corner_n, self.lo, self.hi)
         e = self.entry_node.size
         self.lam_n, self.tri = np.zeros(e), np.zeros(e, dtype=np.int64)
         self.bary, self.normal = np.zeros((e, 3)), np.zeros((e, 3))
-        self.clear_x, self.clear_d, self.clear_m = np.zeros((e, 3)), np.zeros(e), np.zeros(e)
+        if x is None or not self.contacts:
+            self.clear_x, self.clear_d, self.clear_m = np.zeros((e, 3)), np.zeros(e), np.zeros(e)
+        else:  # a node outside a static surface is left alone from the first sweep (broad_phase's entry_gap)
+            self.clear_x, self.clear_d, self.clear_m = x[self.entry_node], gap, np.zeros(e)
         bounds = np.searchsorted(self.entry_contact, np.arange(len(self.contacts) + 1))
         for k, c in enumerate(self.contacts):
             part = slice(bounds[k], bounds[k + 1])
