@@ -234,7 +234,7 @@ def test_ebm_prediction_that_would_invert_an_element_is_shortened(kernel):
     model.fixed[select.nodes_on_side(mesh.points, 2, "min")] = True
     centre = int(np.argmin(np.linalg.norm(mesh.points - 0.5, axis=1)))
     v = np.zeros_like(mesh.points)
-    v[centre] = [0.0, 0.0, 0.8 / 0.01]  # 0.8 m in one 10 ms step, through the cube's top (cells of 0.5 m)
+    v[centre] = [0.0, 0.0, 0.8 / 0.01]  # 0.8 m in one step of 0.01 s, through the cube's top (cells of 0.5 m)
     ebm = EBM(model, {"iterations": 20, "kernel": kernel})
     state = ebm.step(State(x=mesh.points.copy(), v=v), 0.01)
     assert len(ebm.shortened_predictions) == 1
