@@ -147,7 +147,7 @@ class XPBD:
         m = model
         # Per-tet data is stored in colour order, so each colour is a contiguous range read sequentially:
         # the colours of each domain's interior, then the separator's (see split_into_domains).
-        self.domains = numba.config.NUMBA_NUM_THREADS if settings.domains is None else settings.domains
+        self.domains = settings.domains
         tets = np.ascontiguousarray(m.tets, dtype=np.int64)
         colours, domain_colour = [], [0]
         for part in split_into_domains(m.X, tets, self.domains):

@@ -1,4 +1,4 @@
-"""EBM (float64, float32), CNN and explicit on two threads: the positions do not depend on the thread count.
+"""EBM (float64, float32), CNN, explicit and XPBD on two threads: the positions do not depend on the thread count.
 
 Large meshes take the parallel kernels (sim.integrators.ebm.blocked: each sweep's lane pass over blocks and node pass over free
 nodes split into one chunk per thread; sim.force_kernels.forces_and_energy_parallel: per-tet corner forces, then a
@@ -8,6 +8,8 @@ chunking, so 1 and 2 threads must agree bit for bit, and with the serial kernels
 The integrators read the thread count from ``numba.get_num_threads()``; the tests set it to 2 even when numba was
 started with one thread (NUMBA_NUM_THREADS=1, as the suite runs), so the parallel path and its two chunks run either
 way (on one thread then: the result cannot depend on how the chunks are scheduled, only on the chunking).
+XPBD's default settings are also built under the start-up thread count ``numba.config.NUMBA_NUM_THREADS`` of a
+one-thread and a two-thread worker: nothing in its defaults (the sweep order: ``domains``) may follow it.
 """
 from __future__ import annotations
 
@@ -20,6 +22,9 @@ from sim.integrators import make_integrator
 from sim.integrators.ebm import blocked as ebm_blocked
 from sim.mesh import procedural, select
 from sim.model import Model, State
+from sim.probe import Probe
+
+STARTUP_THREADS = numba.config.NUMBA_NUM_THREADS  # the size of numba's thread pool in this process
 
 
 def _beam(cells, constitutive="stable_neo_hookean") -> Model:
@@ -38,7 +43,7 @@ def _run(monkeypatch, name, model, settings, threads, steps=3, dt=1e-3):
     """Positions after ``steps`` steps with ``threads`` numba threads (as the integrator sees them)."""
     monkeypatch.setattr(numba, "get_num_threads", lambda: threads)
     previous = numba.np.ufunc.parallel.get_num_threads()
-    numba.np.ufunc.parallel.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    numba.np.ufunc.parallel.set_num_threads(min(threads, STARTUP_THREADS))
     try:
         integrator = make_integrator(name, model, settings)
         state = State.at_rest(model)
@@ -82,6 +87,25 @@ def test_constitutive_forces_do_not_depend_on_the_thread_count(monkeypatch, name
     sag = np.abs(runs[1] - model.X).max()
     assert 1e-7 < sag < 0.1
     assert np.array_equal(runs[2], runs[1])
+
+
+@pytest.mark.parametrize("probe", [False, True])
+def test_xpbd_default_positions_do_not_depend_on_the_thread_count(monkeypatch, probe):
+    """The same scene on a one-thread and a two-thread worker: XPBD with its default settings (no ``domains``) built
+    and stepped under NUMBA_NUM_THREADS = 1 and 2 gives the same bytes. With a probe pressing on the beam the
+    substeps run in the fused sweeps (sim.integrators.xpbd.sweeps), without one in the blocked kernel's launches."""
+    model = _beam(LARGE)
+    if probe:  # a sphere touching the beam's top face near its free end, pressing 1 cm down during the 3 steps
+        model.probes = [Probe("sphere", 0.1, times=[0.0, 0.003], positions=[[1.5, 0.1, 0.3], [1.5, 0.1, 0.29]])]
+    runs = {}
+    for threads in (1, 2):
+        monkeypatch.setattr(numba.config, "NUMBA_NUM_THREADS", threads)  # as a worker started with that many
+        integrator, runs[threads] = _run(monkeypatch, "xpbd", model, {}, threads)
+        assert integrator.domain_colour.size - 2 > 1  # several domain interiors: the parallel sweep runs
+        assert (integrator.fused is not None) == probe
+    sag = np.abs(runs[1] - model.X).max()
+    assert 1e-6 < sag < 0.1
+    assert runs[2].tobytes() == runs[1].tobytes()
 
 
 def test_parallel_forces_equal_the_serial_kernel_bit_for_bit():
