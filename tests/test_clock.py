@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from sim.errors import SimulationDiverged
+from sim.integrators.xpbd.sweeps import FusedSweeps
 from sim.probe import Probe
 from tissuerender import load_scene, make_plan
 from tissuerender.cli import main
@@ -52,6 +53,9 @@ def test_drawn_probe_sits_on_the_dent_it_makes_with_the_default_dt(scene_dict, w
 
     monkeypatch.setattr(Probe, "segment", recording_segment)
     monkeypatch.setattr(Probe, "capsule_rows", recording_rows)
+    # one step's poses per call, so the last time asked is the frame's last substep's (the look-ahead gives the
+    # same capsules: tests/sim/test_contact_set.py runs past it against the per-sweep loop)
+    monkeypatch.setattr(FusedSweeps, "LOOKAHEAD", 1)
     world = build_world(scene, make_plan(scene), StageRecorder())
     tool = scene.tools[0]
     radius = tool.radius

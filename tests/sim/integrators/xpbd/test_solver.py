@@ -152,18 +152,22 @@ def test_numba_energy_kernel_matches_the_numpy_sweep(constitutive):
         model.fibre = np.tile([0.0, 0.0, 1.0], (model.n_tets, 1))
         model.material_params["eta"] = 20 * model.mu
     x_ref = ReferenceIntegrator(model, {"mode": "quasistatic", "load_steps": 4}).step(State.at_rest(model), 1.0).x
-    x = {}
+    x, early = {}, {}
     for kernel in ("numba", "numpy"):
         xpbd = XPBD(model, {"substeps": 2, "iterations": 5, "damping": 4.0, "material": "model", "energy_kernel": kernel})
         state = State.at_rest(model)
-        for _ in range(60):
+        for step in range(60):
             state = xpbd.step(state, 0.2)
+            if step == 9:
+                early[kernel] = state.x
         x[kernel] = state.x
         assert relative_l2(state.x - model.X, x_ref - model.X) < 0.015  # measured 0.55 - 0.99 %, both kernels
     # one sweep from the same deformed state: the same positions to rounding (measured 2.7e-15 m for a
-    # 2 cm move). Whole runs drift apart further for the split models (measured 5e-4 / 8e-4 m, StVK
-    # 2e-9 m): at this substep (0.1 s, far above the critical step) the settling amplifies rounding
-    # about 2.3x per step (1e-11 m after 10 steps, 1e-7 m after 20)
+    # 2 cm move). Whole runs drift apart further for the split models: at this substep (0.1 s, far above the
+    # critical step) the settling amplifies rounding about 2.3x per step, so after 60 steps the gap is chaotic
+    # (1e-4 to 4e-3 m with 1, 2 or 3 domains: not a property of the kernels); after 10 steps it is the sweeps'
+    # rounding (~3e-15 m a sweep, 10 sweeps a step) grown 2.3^10 times, ~1e-10 m (measured at most 2e-10 m over
+    # 1-3 domains and the three models): bound 1e-8 m
     moved = {}
     for kernel in ("numba", "numpy"):
         xpbd = XPBD(model, {"material": "model", "energy_kernel": kernel})
@@ -172,4 +176,4 @@ def test_numba_energy_kernel_matches_the_numpy_sweep(constitutive):
         moved[kernel] = y
     assert np.abs(moved["numpy"] - x["numpy"]).max() > 1e-4
     assert np.abs(moved["numba"] - moved["numpy"]).max() <= 1e-12
-    assert np.abs(x["numba"] - x["numpy"]).max() <= 2e-3
+    assert np.abs(early["numba"] - early["numpy"]).max() <= 1e-8
