@@ -46,7 +46,8 @@ def _face_normals_and_boxes(x, tri_v, t0, t1, reach, face_n, lo, hi):
 def nearest_triangle(g, x, static_x, n_nodes, tri_v, face_n, lo, hi, reach, first, cand, c0, c1, runner_up=0.0):
     """The nearest triangle within ``reach`` of point g over ``first`` (-1: none) then ``cand[c0:c1]``, skipping a
     triangle whose box (the grown box shrunk by ``reach``) or plane is farther than the best so far: ``(t, feature,
-    b0, b1, b2, second2)``, t = -1 for none (``sim.contact_mesh.project_nodes``' search). With ``runner_up`` > 0 [m], ``second2`` bounds from below the squared distance to the nearest triangle
+    b0, b1, b2, second2)``, t = -1 for none (``sim.contact_mesh.project_nodes``' search). With ``runner_up`` > 0
+    [m], ``second2`` bounds from below the squared distance to the nearest triangle
     other than t: it is that distance when under t's plus ``runner_up`` (and ``reach``), else at least that (a
     triangle as near as t makes it t's); the skipping then compares with it, which leaves t the same. Without,
     ``second2`` is ``reach**2``."""

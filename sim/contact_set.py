@@ -379,6 +379,7 @@ class ContactSet:
             self.entry_node, self.entry_contact, self.entry_hint, self.candidates = empty, empty, empty, empty
             self.entry_second, self.entry_closed = np.zeros(0), np.zeros(0, np.bool_)
             self.entry_start = np.zeros(1, np.int64)
+            gap, at = np.zeros(0), np.zeros((0, 3))
         else:
             for k, vertices in enumerate(self.c_vertices):  # x_start: the last broad phase's positions
                 if vertices is not None and self.substep:  # (nothing is kept before the first)
@@ -396,13 +397,12 @@ class ContactSet:
                 self.keep_items, self.keep_closed,
                 self.node_ref, self.node_clear, self.node_drift, self.last_hint,
                 self.face_n, self.edge_n, self.corner_n, self.lo, self.hi)
+            at = x[self.entry_node]  # where each node's gap was found
         e = self.entry_node.size
         self.lam_n, self.tri = np.zeros(e), np.zeros(e, dtype=np.int64)
         self.bary, self.normal = np.zeros((e, 3)), np.zeros((e, 3))
-        if x is None or not self.contacts:
-            self.clear_x, self.clear_d, self.clear_m = np.zeros((e, 3)), np.zeros(e), np.zeros(e)
-        else:  # a node outside a static surface is left alone from the first sweep (broad_phase's entry_gap)
-            self.clear_x, self.clear_d, self.clear_m = x[self.entry_node], gap, np.zeros(e)
+        # a node outside a static surface is left alone from the first sweep (broad_phase's entry_gap)
+        self.clear_x, self.clear_d, self.clear_m = at, gap, np.zeros(e)
         bounds = np.searchsorted(self.entry_contact, np.arange(len(self.contacts) + 1))
         for k, c in enumerate(self.contacts):
             part = slice(bounds[k], bounds[k + 1])
@@ -416,8 +416,8 @@ class ContactSet:
                 self.c_tri_start,
                 self.tri_v, self.tri_adj, self.tri_lv, self.lv_start, self.lv_face, self.normals_at, self.substep,
                 self.face_n, self.edge_n, self.corner_n, self.lv_n, self.lv_at, self.lo, self.hi, self.c_reach,
-                self.c_motion, self.entry_closed, self.clear_x, self.clear_d, self.clear_m, self.c_sign, self.c_pair, self.lam_n,
-                self.tri, self.bary, self.normal)
+                self.c_motion, self.entry_closed, self.clear_x, self.clear_d, self.clear_m, self.c_sign, self.c_pair,
+                self.lam_n, self.tri, self.bary, self.normal)
 
     def project(self, x: np.ndarray, w: np.ndarray, loads: np.ndarray) -> int:
         """One pass over the visited nodes; adds the impulses to ``loads`` (pairs, 6) (:func:`project_entries`)."""
