@@ -61,10 +61,14 @@ def test_ebm_error_against_the_reference_falls_with_iterations(make_case, steps)
         state, ebm = _ebm_run(case, iterations, steps)
         errors[iterations] = relative_l2(state.x - case.model.X, u_ref)
         # RED recorded once per step, finite; the stored energy is at least the equilibrium's (the reference
-        # minimises it under the same boundary displacements) and, measured, 2-3x it (docs/ebm.md)
+        # minimises it under the same boundary displacements) and, measured, 2-3.5x it (docs/ebm.md). At 20
+        # iterations the sweeps have not converged and the state is one draw of a chaotic ensemble (the next test):
+        # over 20,000 last-ulp realisations of the cylinder extension 2.6-4.52x (0.5 % above 4x; this case gave
+        # 4.07x on an AVX-512 host's OpenBLAS), so its bound is past that support; 100 and 500 iterations: 1.9-3.4x
+        # over 200 realisations of each case
         assert len(ebm.red_history) == steps and np.isfinite(ebm.red_history).all()
         energy = elastic.elastic_energy(case.model, state.x)
-        assert energy_ref < energy < 4.0 * energy_ref
+        assert energy_ref < energy < (6.0 if iterations == 20 else 4.0) * energy_ref
         if iterations == 20:
             assert 0.0 < ebm.work_in and ebm.red_history[-1] < 3.0  # measured 0.14-2.5 over the three cases
     # Measured (relative L2): cylinder extension 0.28 / 0.12 / 0.12, compression 0.20 / 0.13 / 0.12-0.16,
@@ -205,23 +209,28 @@ def test_ebm_cylinder_at_20_iterations_stays_finite_under_last_ulp_changes_of_dm
     change about 2-3x per sweep, so each realisation ends on a different state (docs/design.md, "Zhang ch. 5: EBM");
     before the prediction was kept from inverting elements, 4 of 200 stopped with "non-finite positions" (the
     prediction of step 7 or 8 inverted an element near z = 1.5 m). Measured over 400: 1.5 % of the runs shorten a
-    prediction (alpha 0.66-0.9), relative L2 error 0.26-0.30, stored energy 2.85-3.98x the reference's."""
+    prediction (alpha 0.66-0.9), relative L2 error 0.26-0.30. Stored energy over 20,000 realisations (an AVX-512
+    host's OpenBLAS): median 3.46x the reference's, 2.6-4.52x, 0.5 % above 4x: a run is asserted within 6x (past that
+    support, a blow-up is far beyond), the ensemble's median and tail against those figures."""
     case = zhang_cylinder(h=0.25, displacement=0.4)
     model = case.model
     x_ref = ReferenceIntegrator(model, {"mode": "quasistatic", "load_steps": 4}).step(
         State.at_rest(model), case.ramp_time).x
     energy_ref = elastic.elastic_energy(model, x_ref)
     Dm_inv = model.Dm_inv.copy()
-    shortened = 0
+    shortened, energies = 0, []
     for seed in range(200):
         ulps = np.random.default_rng(seed).integers(-1, 2, Dm_inv.shape)
         model.Dm_inv = np.ascontiguousarray(Dm_inv + ulps * np.spacing(np.abs(Dm_inv)))
         state, ebm = _ebm_run(case, 20, 8)
         assert np.isfinite(state.x).all() and np.isfinite(ebm.red_history).all()
         assert relative_l2(state.x - model.X, x_ref - model.X) < 0.35
-        assert energy_ref < elastic.elastic_energy(model, state.x) < 4.5 * energy_ref
+        energies.append(elastic.elastic_energy(model, state.x) / energy_ref)
+        assert 1.0 < energies[-1] < 6.0
         shortened += bool(ebm.shortened_predictions)
     assert shortened < 20  # the guard is a rare event, not the scheme
+    # measured over 20,000: median 3.46, 0.47 % above 4 (200 draws: the median within about 0.03)
+    assert 3.2 < np.median(energies) < 3.7 and np.mean(np.array(energies) > 4.0) < 0.05
 
 
 @pytest.mark.parametrize("kernel", ["blocked", "numba", "numpy"])
