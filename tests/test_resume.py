@@ -7,6 +7,7 @@ import copy
 import json
 import os
 import signal
+import stat
 import subprocess
 import sys
 import time
@@ -335,6 +336,25 @@ def test_atomic_writes_use_names_a_render_recognises_as_temporaries(tmp_path):
     assert remove_temporaries(tmp_path) == sorted(tmp_path / n for n in seen)
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
         [".notes", "frame.tmp.png", "frame_0002.png", "block_0002.vtu", "manifest.json", "frame_0002.npy"])
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_atomic_writes_give_a_new_file_the_mode_of_a_plain_open_and_keep_a_replaced_files(tmp_path, umask, mode):
+    """tempfile.mkstemp's 0o600 used to reach every output through the rename."""
+    old = os.umask(umask)
+    try:
+        write_atomic(tmp_path / "frame_0001.png", lambda tmp: Path(tmp).write_text("x"))
+        with open(tmp_path / "plain.txt", "w") as f:
+            f.write("x")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "frame_0001.png").stat().st_mode) == mode
+    assert stat.S_IMODE((tmp_path / "plain.txt").stat().st_mode) == mode
+    os.chmod(tmp_path / "frame_0001.png", 0o640)
+    write_atomic(tmp_path / "frame_0001.png", lambda tmp: Path(tmp).write_text("y"))
+    assert stat.S_IMODE((tmp_path / "frame_0001.png").stat().st_mode) == 0o640
+    assert (tmp_path / "frame_0001.png").read_text() == "y"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame_0001.png", "plain.txt"]
 
 
 @pytest.mark.parametrize("frames, text", [(set(), ""), ({1}, "1"), ({1, 2, 3, 5}, "1-3,5"),

@@ -10,7 +10,8 @@ from __future__ import annotations
 import json
 import os
 import re
-import tempfile
+import secrets
+import string
 from pathlib import Path
 
 import numpy as np
@@ -34,7 +35,7 @@ def output_folder(path) -> Path:
     return path
 
 
-# ``write_atomic``'s temporary names: mkstemp's 8 random characters are [a-z0-9_]
+# ``write_atomic``'s temporary names: 8 random characters of [a-z0-9_]
 TEMPORARY_NAME = re.compile(r"^\..+\.[a-z0-9_]{8}\.tmp(\.[^.]+)?$")
 
 
@@ -47,15 +48,37 @@ def remove_temporaries(folder: Path) -> list[Path]:
     return stale
 
 
+_TEMPORARY_CHARACTERS = string.ascii_lowercase + string.digits + "_"
+
+
+def _create_temporary(path: Path) -> str:
+    """A new, empty temporary beside ``path`` (``TEMPORARY_NAME``), created exclusively with the mode a plain
+    ``open()`` gives (0o666 less the umask): ``tempfile.mkstemp`` makes it 0o600, which the rename would carry
+    onto every output, unreadable to anyone else sharing a results folder."""
+    for _ in range(100):
+        name = "".join(secrets.choice(_TEMPORARY_CHARACTERS) for _ in range(8))
+        tmp = path.parent / f".{path.stem}.{name}.tmp{path.suffix}"
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        except FileExistsError:
+            continue
+        return str(tmp)
+    raise FileExistsError(f"{path.parent}: no free temporary name for {path.name}")
+
+
 def write_atomic(path: Path, write) -> None:
     """Call ``write(tmp_path)`` then rename onto ``path``. The temporary name keeps ``path``'s suffix, so
-    writers that choose the format by suffix (meshio) write the right one."""
+    writers that choose the format by suffix (meshio) write the right one. A new file gets the mode a plain
+    ``open()`` would give it; a replaced one keeps its own."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp" + path.suffix, dir=path.parent)
+    tmp = _create_temporary(path)
     try:
-        os.close(fd)
         write(tmp)
+        try:
+            os.chmod(tmp, os.stat(path).st_mode & 0o7777)
+        except FileNotFoundError:
+            pass
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
