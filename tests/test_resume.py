@@ -4,6 +4,7 @@ this process) leaves only complete files, from which ``--resume`` finishes a seq
 from __future__ import annotations
 
 import copy
+import errno
 import json
 import os
 import signal
@@ -19,7 +20,7 @@ import tomli_w
 import tissuerender
 from tissuerender import load_scene, pipeline
 from tissuerender.cli import main
-from tissuerender.files import TEMPORARY_NAME, remove_temporaries, write_atomic
+from tissuerender.files import TEMPORARY_NAME, OutputError, remove_temporaries, write_atomic
 from tissuerender.manifest import frame_ranges, parse_frame_ranges
 from tissuerender.plan import make_plan
 from tissuerender.render_inputs import render_objects
@@ -268,6 +269,51 @@ def test_a_missing_vtu_makes_its_frame_unfinished(scene_dict, write_scene, tmp_p
     assert [p.name for p in resumed.written] == ["frame_0002.png", "block_0002.vtu"]
     assert [p.name for p in resumed.skipped] == ["frame_0001.png", "frame_0003.png"]
     assert {n: (out / n).read_bytes() for n in original} == original
+
+
+def test_a_full_disk_names_the_file_keeps_the_finished_frames_and_resumes(scene_dict, write_scene, tmp_path,
+                                                                          monkeypatch, capsys):
+    """ENOSPC when frame 2's PNG lands (os.replace, the last step of every write): exit status 2 and one line
+    naming the file, no traceback, no temporary left; frame 1 and the manifest stay; once there is room, --resume
+    writes what is missing, the same bytes as an uninterrupted render."""
+    path = write_scene(_small_dynamic(scene_dict))
+    reference, out = tmp_path / "reference", tmp_path / "out"
+    assert main(["render", str(path), "-o", str(reference), "--quiet"]) == 0
+    replace = os.replace
+
+    def full_disk(src, dst):
+        if Path(dst).name == "frame_0002.png":
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        replace(src, dst)
+
+    monkeypatch.setattr(tissuerender.files.os, "replace", full_disk)
+    capsys.readouterr()
+    assert main(["render", str(path), "-o", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith(f"error: {out / 'frame_0002.png'}: cannot write: No space left on device; the finished frames"
+                          " are kept")
+    assert sorted(p.name for p in out.iterdir()) == ["block_0001.vtu", "frame_0001.png", "manifest.json",
+                                                     "tool_forces.csv"]
+    assert json.loads((out / "manifest.json").read_text())["frames_done_ranges"] == "1"
+    monkeypatch.setattr(tissuerender.files.os, "replace", replace)
+    assert main(["render", str(path), "-o", str(out), "--resume", "--quiet"]) == 0
+    names = sorted(p.name for p in reference.iterdir() if p.name != "manifest.json")
+    assert names == sorted(p.name for p in out.iterdir() if p.name != "manifest.json")
+    assert all((out / n).read_bytes() == (reference / n).read_bytes() for n in names)
+
+
+def test_an_unwritable_output_is_an_output_error_and_other_errors_pass(tmp_path):
+    def raising(error):
+        def write(tmp):
+            raise error
+        return write
+
+    with pytest.raises(OutputError, match=r"frame_0001\.png: cannot write: Read-only file system"):
+        write_atomic(tmp_path / "frame_0001.png", raising(OSError(errno.EROFS, "Read-only file system")))
+    with pytest.raises(ValueError, match="a writer's own bug"):  # not the machine's refusal: passed on as it is
+        write_atomic(tmp_path / "frame_0001.png", raising(ValueError("a writer's own bug")))
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_resume_with_another_frames_option_continues_the_same_sequence(scene_dict, write_scene, tmp_path):

@@ -17,6 +17,7 @@ from tissuerender import show as show_command
 from tissuerender.checks import check_scene
 from tissuerender.distributed import add_dask_options
 from tissuerender.errors import UserError
+from tissuerender.files import OutputError
 from tissuerender.report import accuracy as report_accuracy
 
 
@@ -122,7 +123,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (UserError, MeshError) as e:
-        print(f"error: {e}", file=sys.stderr)
+        hint = ""
+        if isinstance(e, OutputError) and args.command in ("render", "batch"):
+            hint = "; the finished frames are kept: make room (or fix the folder) and rerun with --resume"
+        print(f"error: {e}{hint}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as e:
         how = "terminated" if isinstance(e, Terminated) else "interrupted"

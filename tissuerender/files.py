@@ -7,6 +7,7 @@ behind, which the next render into the folder removes (``remove_temporaries``).
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 import re
@@ -66,23 +67,37 @@ def _create_temporary(path: Path) -> str:
     raise FileExistsError(f"{path.parent}: no free temporary name for {path.name}")
 
 
+# what the machine, not the program, refuses: a full disk or quota, a read-only or vanished folder, no permission
+_OUTPUT_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EIO, errno.EFBIG,
+                  errno.ENOENT}
+
+
+class OutputError(UserError):
+    """An output file the machine would not let us write (``_OUTPUT_ERRNOS``): its path and the system's reason.
+    Nothing partial is left: the temporary is removed, the files finished before stay."""
+
+
 def write_atomic(path: Path, write) -> None:
     """Call ``write(tmp_path)`` then rename onto ``path``. The temporary name keeps ``path``'s suffix, so
     writers that choose the format by suffix (meshio) write the right one. A new file gets the mode a plain
-    ``open()`` would give it; a replaced one keeps its own."""
+    ``open()`` would give it; a replaced one keeps its own. A full disk, a read-only folder and the like raise
+    :class:`OutputError` naming ``path``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _create_temporary(path)
+    tmp = None
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = _create_temporary(path)
         write(tmp)
         try:
             os.chmod(tmp, os.stat(path).st_mode & 0o7777)
         except FileNotFoundError:
             pass
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
+    except BaseException as e:
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(e, OSError) and e.errno in _OUTPUT_ERRNOS:
+            raise OutputError(f"{path}: cannot write: {e.strerror or e}") from None
         raise
 
 
