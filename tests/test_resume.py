@@ -20,7 +20,9 @@ import tomli_w
 import tissuerender
 from tissuerender import load_scene, pipeline
 from tissuerender.cli import main
-from tissuerender.files import TEMPORARY_NAME, OutputError, remove_temporaries, write_atomic
+from tissuerender.distributed import render_distributed
+from tissuerender.errors import UserError
+from tissuerender.files import TEMPORARY_NAME, OutputError, one_writer, remove_temporaries, write_atomic
 from tissuerender.manifest import frame_ranges, parse_frame_ranges
 from tissuerender.plan import make_plan
 from tissuerender.render_inputs import render_objects
@@ -301,6 +303,30 @@ def test_a_full_disk_names_the_file_keeps_the_finished_frames_and_resumes(scene_
     names = sorted(p.name for p in reference.iterdir() if p.name != "manifest.json")
     assert names == sorted(p.name for p in out.iterdir() if p.name != "manifest.json")
     assert all((out / n).read_bytes() == (reference / n).read_bytes() for n in names)
+
+
+def test_a_second_render_into_a_folder_in_use_is_refused_and_touches_nothing(scene_dict, write_scene, tmp_path,
+                                                                           capsys):
+    """While one render writes into a folder (its lock held here, as that render's process holds it), another
+    render or resume there exits 2 naming the folder and leaves its files, temporaries included (which it would
+    otherwise delete as a killed writer's); once the lock is released, the render runs."""
+    path = write_scene(scene_dict)
+    out = tmp_path / "out"
+    out.mkdir()
+    busy = out / ".frame_0001.abcdefgh.tmp.png"  # the first render's frame, being written
+    busy.write_text("half a frame")
+    with one_writer(out):
+        for extra in ([], ["--resume"]):
+            capsys.readouterr()
+            assert main(["render", str(path), "-o", str(out), "--quiet", *extra]) == 2
+            err = capsys.readouterr().err
+            assert err == f"error: {out}: another tissuerender process is writing into this folder; wait for it to " \
+                          "finish or choose another output folder\n"
+        with pytest.raises(UserError, match="another tissuerender process is writing"):  # before any cluster starts
+            render_distributed(load_scene(path), out, workers=1, progress=False)
+        assert sorted(p.name for p in out.iterdir()) == [busy.name]
+    assert main(["render", str(path), "-o", str(out), "--quiet"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["frame_0001.png", "manifest.json"]  # the stale one removed
 
 
 def test_an_unwritable_output_is_an_output_error_and_other_errors_pass(tmp_path):

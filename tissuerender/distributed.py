@@ -25,7 +25,7 @@ import numpy as np
 
 from tissuerender import pipeline
 from tissuerender.errors import UserError
-from tissuerender.files import remove_temporaries
+from tissuerender.files import one_writer, output_folder, remove_temporaries
 from tissuerender.manifest import frame_ranges
 from tissuerender.plan import make_plan
 from tissuerender.scene import Scene
@@ -199,7 +199,15 @@ def render_distributed(scene: Scene, out_dir, resume: bool = False, progress: bo
     """``pipeline.render`` with the frames rendered as Dask tasks: on ``client`` when given, else on a new
     local cluster of ``workers`` processes or the scheduler at ``scheduler``. ``on_frame(k, client)`` is called
     after frame ``k`` is recorded. A frame that cannot be rendered because its workers died is reported, after
-    every other frame is finished, as a UserError naming the missing frames (``--resume`` renders them)."""
+    every other frame is finished, as a UserError naming the missing frames (``--resume`` renders them). The only
+    client writing into the folder (``files.one_writer``)."""
+    with one_writer(output_folder(out_dir)):
+        return _render_distributed(scene, out_dir, resume, progress, frames, workers, scheduler, client, on_frame,
+                                   announce)
+
+
+def _render_distributed(scene, out_dir, resume, progress, frames, workers, scheduler, client, on_frame,
+                        announce) -> pipeline.RunResult:
     run_start = time.time()
     cutting = [i for i, t in enumerate(scene.tools) if t.cut]
     if cutting:  # a frame task rebuilds the world from a state file, which holds positions, not the cut topology

@@ -7,7 +7,9 @@ behind, which the next render into the folder removes (``remove_temporaries``).
 """
 from __future__ import annotations
 
+import contextlib
 import errno
+import fcntl
 import json
 import os
 import re
@@ -36,13 +38,32 @@ def output_folder(path) -> Path:
     return path
 
 
+@contextlib.contextmanager
+def one_writer(folder: Path):
+    """While the block runs, this process is the only tissuerender writing into ``folder`` (an exclusive
+    ``flock`` on the folder itself: nothing is added to it, and the system drops the lock however the process
+    ends, SIGKILL included). Another render into the same folder would delete this one's temporaries
+    (``remove_temporaries``) and interleave manifests: it gets a :class:`UserError` instead."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise UserError(f"{folder}: another tissuerender process is writing into this folder; wait for it to "
+                            "finish or choose another output folder") from None
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
 # ``write_atomic``'s temporary names: 8 random characters of [a-z0-9_]
 TEMPORARY_NAME = re.compile(r"^\..+\.[a-z0-9_]{8}\.tmp(\.[^.]+)?$")
 
 
 def remove_temporaries(folder: Path) -> list[Path]:
     """Delete the temporaries a killed writer left in ``folder`` and its subfolders (``passes/``); returns
-    them. Only one render may write into a folder at a time (another one's temporaries would go too)."""
+    them. Only one render writes into a folder at a time (``one_writer``): what it finds is a killed writer's
+    or its own."""
     stale = sorted(p for p in Path(folder).rglob(".*.tmp*") if TEMPORARY_NAME.match(p.name) and p.is_file())
     for path in stale:
         path.unlink(missing_ok=True)

@@ -24,7 +24,8 @@ from tissuerender.checks import check_scene
 from tissuerender.errors import UserError
 from tissuerender.finite import NonFiniteError, frame_at
 from tissuerender.groundtruth import formats as gt_formats
-from tissuerender.files import output_folder, remove_temporaries, write_atomic, write_json, write_npy, write_png
+from tissuerender.files import (one_writer, output_folder, remove_temporaries, write_atomic, write_json, write_npy,
+                               write_png)
 from tissuerender.manifest import manifest, read_resumable
 from tissuerender.plan import Plan, make_plan
 from tissuerender.renderer import render_frame
@@ -228,7 +229,8 @@ def finish_sequence(seq: Sequence) -> RunResult:
 
 def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, frames: int | None = None,
            on_frame=None) -> RunResult:
-    """Render the scene's image sequence into ``out_dir`` (frames, optional HDR/VTU, manifest.json).
+    """Render the scene's image sequence into ``out_dir`` (frames, optional HDR/VTU, manifest.json), the only
+    render writing there (``files.one_writer``: another one into the same folder is a :class:`UserError`).
 
     ``frames`` renders only the first N of the scene's frames. ``resume`` keeps the frames that
     ``manifest.json`` records as finished by a render of the same scene file (same sha256, frame count and
@@ -237,6 +239,11 @@ def render(scene: Scene, out_dir, resume: bool = False, progress: bool = True, f
     See docs/design.md, "Resume and interruption". ``tissuerender.distributed.render_distributed`` renders the
     same frames as Dask tasks. ``on_frame()`` is called after each frame is finished or kept (a batch's progress).
     """
+    with one_writer(output_folder(out_dir)):
+        return _render(scene, out_dir, resume, progress, frames, on_frame)
+
+
+def _render(scene: Scene, out_dir, resume: bool, progress: bool, frames: int | None, on_frame) -> RunResult:
     seq = start_sequence(scene, out_dir, resume, frames)
     world, plan, recorder, out = seq.world, seq.plan, seq.recorder, seq.out
     previous = None
