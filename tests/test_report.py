@@ -16,6 +16,7 @@ import re
 import pytest
 
 from tissuerender import cli
+from tissuerender.files import one_writer
 from tissuerender.report import accuracy, cases
 from tissuerender.report.claims import CLAIMS
 from tissuerender.report.measure import pareto_front
@@ -181,3 +182,10 @@ def test_bad_arguments_exit_2_with_one_line(tmp_path, capsys):
     assert cli.main(["report", "accuracy", "-o", str(blocker / "sub"), "--cases", "msd"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and str(blocker) in err
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    with one_writer(busy):  # another report (or render) is writing there: nothing computed, nothing written
+        assert cli.main(["report", "accuracy", "-o", str(busy), "--cases", "msd", "--no-warmup"]) == 2
+    assert capsys.readouterr().err == f"error: {busy}: another tissuerender process is writing into this folder; " \
+                                      "wait for it to finish or choose another output folder\n"
+    assert list(busy.iterdir()) == []

@@ -24,7 +24,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 import sim
 from tissuerender.distributed import add_dask_options, dask_client
 from tissuerender.errors import UserError
-from tissuerender.files import output_folder, write_atomic, write_json
+from tissuerender.files import one_writer, output_folder, write_atomic, write_json
 from tissuerender.manifest import package_versions
 from tissuerender.report import cases as case_runs
 from tissuerender.report import scene as scene_report
@@ -354,9 +354,10 @@ def _cmd_accuracy(args) -> int:
                         "SCENE -o DIR --budget ...")
     scene = load_scene(args.scene) if args.scene is not None else None
     out = output_folder(args.out)
-    report = run_report(out, quick=args.quick, cases=names if args.cases else None, progress=not args.quiet,
-                        scene=scene, budget=budget, workers=args.workers, scheduler=args.scheduler,
-                        warmup=None if args.warmup else False)
+    with one_writer(out):  # a second report into the folder would take over its cases mid-write
+        report = run_report(out, quick=args.quick, cases=names if args.cases else None, progress=not args.quiet,
+                            scene=scene, budget=budget, workers=args.workers, scheduler=args.scheduler,
+                            warmup=None if args.warmup else False)
     if not args.quiet and scene is not None:
         for part in ("simulation", "rendering"):
             done = report["scene"][part]
