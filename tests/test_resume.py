@@ -329,6 +329,18 @@ def test_a_second_render_into_a_folder_in_use_is_refused_and_touches_nothing(sce
     assert sorted(p.name for p in out.iterdir()) == ["frame_0001.png", "manifest.json"]  # the stale one removed
 
 
+def test_a_folder_that_cannot_be_locked_is_written_unguarded(tmp_path, monkeypatch):
+    """A file system without flock (some network mounts answer ENOLCK): the render goes on, as without the
+    lock; the lock is the guard against a second render, not a condition of the first."""
+    def no_locks(fd, how):
+        raise OSError(errno.ENOLCK, os.strerror(errno.ENOLCK))
+
+    monkeypatch.setattr(tissuerender.files.fcntl, "flock", no_locks)
+    with one_writer(tmp_path):
+        write_atomic(tmp_path / "frame_0001.png", lambda tmp: Path(tmp).write_text("x"))
+    assert (tmp_path / "frame_0001.png").read_text() == "x"
+
+
 def test_an_unwritable_output_is_an_output_error_and_other_errors_pass(tmp_path):
     def raising(error):
         def write(tmp):

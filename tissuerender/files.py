@@ -44,13 +44,19 @@ def one_writer(folder: Path):
     ``flock`` on the folder itself: nothing is added to it, and the system drops the lock however the process
     ends, SIGKILL included). Another render into the same folder would delete this one's temporaries
     (``remove_temporaries``) and interleave manifests: it gets a :class:`UserError` instead."""
-    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:  # a folder one may write to but not read (mode -wx): written unguarded, as before
+        yield
+        return
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             raise UserError(f"{folder}: another tissuerender process is writing into this folder; wait for it to "
                             "finish or choose another output folder") from None
+        except OSError:  # a file system without locks (ENOLCK, EOPNOTSUPP: some network mounts): unguarded
+            pass
         yield
     finally:
         os.close(fd)  # releases the lock
